@@ -1,0 +1,310 @@
+//! Validated model weights with shape-checked, prefix-scoped access.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+use crate::config::ModelConfig;
+use crate::error::{Result, WeightsError};
+use crate::tensor_file::{Tensor, TensorFile, write_safetensors};
+
+/// The complete `name → shape` list of a model file, derived from its config
+/// (docs/FORMAT.md, "Tensor names"), in network order.
+pub fn expected_tensors(cfg: &ModelConfig) -> Vec<(String, Vec<usize>)> {
+    let mut out = Vec::new();
+    let c = cfg.width;
+    out.push(("est.stem.weight".into(), vec![c, cfg.in_channels, 7, 7]));
+    let widths = [c, 2 * c, 4 * c, 8 * c];
+    let mut prev = c;
+    for (k, &w) in widths.iter().enumerate() {
+        let stride = if k == 0 { 1 } else { 2 };
+        basic_block(&mut out, &format!("est.enc{}.0", k + 1), prev, w, stride);
+        basic_block(&mut out, &format!("est.enc{}.1", k + 1), w, w, 1);
+        prev = w;
+    }
+    reverse_block(&mut out, "est.dec1.0", 8 * c, 8 * c);
+    basic_block(&mut out, "est.dec1.1", 8 * c, 8 * c, 1);
+    reverse_block(&mut out, "est.dec2.0", 12 * c, 4 * c);
+    basic_block(&mut out, "est.dec2.1", 4 * c, 4 * c, 1);
+    reverse_block(&mut out, "est.dec3.0", 6 * c, 2 * c);
+    basic_block(&mut out, "est.dec3.1", 2 * c, 2 * c, 1);
+    basic_block(&mut out, "est.dec4.0", 3 * c, c, 1);
+    basic_block(&mut out, "est.dec4.1", c, c, 1);
+    out.push(("est.head.weight".into(), vec![cfg.param_channels, c, 7, 7]));
+    for (i, pair) in cfg.nd_enc.windows(2).enumerate() {
+        out.push((format!("nd_enc.l{i}.weight"), vec![pair[1], pair[0]]));
+    }
+    for (i, pair) in cfg.render.windows(2).enumerate() {
+        out.push((format!("render.l{i}.weight"), vec![pair[1], pair[0]]));
+    }
+    out
+}
+
+fn ha(out: &mut Vec<(String, Vec<usize>)>, p: &str, cin: usize, cout: usize) {
+    out.push((format!("{p}.gate.weight"), vec![cout, cin, 3, 3]));
+    out.push((format!("{p}.feat.weight"), vec![cout, cin, 3, 3]));
+    out.push((format!("{p}.inc1a.weight"), vec![cout, cin, 3, 3]));
+    out.push((format!("{p}.inc1b.weight"), vec![cout / 2, cout, 3, 3]));
+    out.push((format!("{p}.inc2.weight"), vec![cout / 2, cin, 3, 3]));
+}
+
+fn basic_block(
+    out: &mut Vec<(String, Vec<usize>)>,
+    p: &str,
+    cin: usize,
+    cout: usize,
+    stride: usize,
+) {
+    ha(out, &format!("{p}.ha1"), cin, cout);
+    out.push((format!("{p}.bn1.scale"), vec![cout]));
+    out.push((format!("{p}.bn1.shift"), vec![cout]));
+    ha(out, &format!("{p}.ha2"), cout, cout);
+    out.push((format!("{p}.bn2.scale"), vec![cout]));
+    out.push((format!("{p}.bn2.shift"), vec![cout]));
+    if cin != cout || stride != 1 {
+        out.push((format!("{p}.down.weight"), vec![cout, cin, 1, 1]));
+        out.push((format!("{p}.down.bias"), vec![cout]));
+    }
+}
+
+fn reverse_block(out: &mut Vec<(String, Vec<usize>)>, p: &str, cin: usize, cout: usize) {
+    out.push((format!("{p}.up4.weight"), vec![cin, cout, 4, 4]));
+    out.push((format!("{p}.up4.bias"), vec![cout]));
+    out.push((format!("{p}.conv.weight"), vec![cout, cout, 3, 3]));
+    out.push((format!("{p}.conv.bias"), vec![cout]));
+    out.push((format!("{p}.up2.weight"), vec![cin, cout, 2, 2]));
+    out.push((format!("{p}.up2.bias"), vec![cout]));
+}
+
+/// A model's config and its tensors, validated against each other: every tensor
+/// the architecture needs is present with the right shape, there are no extra
+/// tensors, and every value is finite. Values are `f32` whatever the storage dtype.
+#[derive(Debug, Clone)]
+pub struct Weights {
+    label: String,
+    config: ModelConfig,
+    tensors: BTreeMap<String, Tensor>,
+}
+
+impl Weights {
+    /// Reads a model file from disk.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
+        Self::from_tensor_file(TensorFile::from_file(path)?)
+    }
+
+    /// Parses an in-memory model file (e.g. `include_bytes!`); `label` names it in errors.
+    pub fn from_bytes(bytes: &[u8], label: &str) -> Result<Self> {
+        Self::from_tensor_file(TensorFile::from_bytes(bytes, label)?)
+    }
+
+    /// Validates an already parsed file (config from `__metadata__["config"]`).
+    pub fn from_tensor_file(file: TensorFile) -> Result<Self> {
+        let label = file.label().to_string();
+        let (metadata, tensors) = file.into_parts();
+        let json = metadata.get("config").ok_or_else(|| WeightsError::Config {
+            file: label.clone(),
+            reason: "__metadata__ has no \"config\" entry".into(),
+        })?;
+        let config = ModelConfig::from_json(json).map_err(|reason| WeightsError::Config {
+            file: label.clone(),
+            reason,
+        })?;
+        Self::from_tensors(config, tensors, &label)
+    }
+
+    /// Validates tensors built in memory against `config`.
+    pub fn from_tensors(
+        config: ModelConfig,
+        tensors: BTreeMap<String, Tensor>,
+        label: &str,
+    ) -> Result<Self> {
+        config.check().map_err(|reason| WeightsError::Config {
+            file: label.to_string(),
+            reason,
+        })?;
+        let expected = expected_tensors(&config);
+        let names: BTreeSet<&str> = expected.iter().map(|(n, _)| n.as_str()).collect();
+        for (name, shape) in &expected {
+            let t = tensors
+                .get(name)
+                .ok_or_else(|| WeightsError::MissingTensor {
+                    file: label.to_string(),
+                    tensor: name.clone(),
+                    expected: shape.clone(),
+                })?;
+            if t.shape() != shape.as_slice() {
+                return Err(WeightsError::ShapeMismatch {
+                    file: label.to_string(),
+                    tensor: name.clone(),
+                    expected: shape.clone(),
+                    found: t.shape().to_vec(),
+                });
+            }
+            if let Some(index) = t.data().iter().position(|v| !v.is_finite()) {
+                return Err(WeightsError::NonFinite {
+                    file: label.to_string(),
+                    tensor: name.clone(),
+                    index,
+                });
+            }
+        }
+        if let Some((name, t)) = tensors.iter().find(|(n, _)| !names.contains(n.as_str())) {
+            return Err(WeightsError::UnexpectedTensor {
+                file: label.to_string(),
+                tensor: name.clone(),
+                found: t.shape().to_vec(),
+            });
+        }
+        Ok(Self {
+            label: label.to_string(),
+            config,
+            tensors,
+        })
+    }
+
+    /// Deterministic random weights for `config` (benchmarks, tests), seeded.
+    ///
+    /// Weights are uniform with variance `1/fan_in` (activations keep their scale
+    /// through the layers); folded-BN scales are `1 ± 0.1`, shifts/biases `± 0.1`.
+    pub fn random(config: ModelConfig, seed: u64) -> Result<Self> {
+        config.check().map_err(|reason| WeightsError::Config {
+            file: "<random>".into(),
+            reason,
+        })?;
+        let mut rng = SplitMix64(seed);
+        let mut tensors = BTreeMap::new();
+        for (name, shape) in expected_tensors(&config) {
+            let n: usize = shape.iter().product();
+            let (centre, half_range) = if name.ends_with(".scale") {
+                (1.0, 0.1)
+            } else if name.ends_with(".shift") || name.ends_with(".bias") {
+                (0.0, 0.1)
+            } else {
+                let fan_in = match shape.as_slice() {
+                    [_, i] => *i,
+                    // Transposed conv, stride 2: each output sees in·(k/2)² taps.
+                    [i, _, kh, kw] if name.contains(".up") => i * kh * kw / 4,
+                    [_, i, kh, kw] => i * kh * kw,
+                    _ => 1,
+                };
+                (0.0, (3.0 / fan_in.max(1) as f64).sqrt())
+            };
+            let data = (0..n)
+                .map(|_| (centre + half_range * rng.uniform_pm1()) as f32)
+                .collect();
+            if let Some(t) = Tensor::new(shape, data) {
+                tensors.insert(name, t);
+            }
+        }
+        Self::from_tensors(config, tensors, "<random>")
+    }
+
+    /// The source label (path or caller-given name).
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// The validated architecture.
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// All tensors by full name.
+    pub fn tensors(&self) -> &BTreeMap<String, Tensor> {
+        &self.tensors
+    }
+
+    /// Row-major `f32` data of `name`, checking the shape is exactly `shape`.
+    pub fn get(&self, name: &str, shape: &[usize]) -> Result<&[f32]> {
+        let t = self
+            .tensors
+            .get(name)
+            .ok_or_else(|| WeightsError::MissingTensor {
+                file: self.label.clone(),
+                tensor: name.to_string(),
+                expected: shape.to_vec(),
+            })?;
+        if t.shape() != shape {
+            return Err(WeightsError::ShapeMismatch {
+                file: self.label.clone(),
+                tensor: name.to_string(),
+                expected: shape.to_vec(),
+                found: t.shape().to_vec(),
+            });
+        }
+        Ok(t.data())
+    }
+
+    /// A view that prefixes names with `prefix.` (e.g. `w.scope("est.enc1.0")`).
+    pub fn scope(&self, prefix: &str) -> Scope<'_> {
+        Scope {
+            weights: self,
+            prefix: prefix.to_string(),
+        }
+    }
+
+    /// Serialises as an F32 model file with the config in `__metadata__`.
+    pub fn to_safetensors_bytes(&self) -> Vec<u8> {
+        let mut meta = BTreeMap::new();
+        meta.insert("config".to_string(), self.config.to_json());
+        write_safetensors(&self.tensors, &meta)
+    }
+}
+
+/// A prefix-scoped view of [`Weights`]: `scope.get("ha1.gate.weight", shape)`
+/// looks up `"{prefix}.ha1.gate.weight"`.
+#[derive(Debug, Clone)]
+pub struct Scope<'a> {
+    weights: &'a Weights,
+    prefix: String,
+}
+
+impl<'a> Scope<'a> {
+    /// Shape-checked data of `{prefix}.{name}`.
+    pub fn get(&self, name: &str, shape: &[usize]) -> Result<&'a [f32]> {
+        self.weights.get(&self.full_name(name), shape)
+    }
+
+    /// A nested scope `{prefix}.{sub}`.
+    pub fn scope(&self, sub: &str) -> Scope<'a> {
+        Scope {
+            weights: self.weights,
+            prefix: self.full_name(sub),
+        }
+    }
+
+    /// The prefix of this scope (no trailing dot).
+    pub fn prefix(&self) -> &str {
+        &self.prefix
+    }
+
+    /// The config of the underlying weights.
+    pub fn config(&self) -> &'a ModelConfig {
+        &self.weights.config
+    }
+
+    fn full_name(&self, name: &str) -> String {
+        if self.prefix.is_empty() {
+            name.to_string()
+        } else {
+            format!("{}.{name}", self.prefix)
+        }
+    }
+}
+
+/// SplitMix64: tiny, seedable, good enough for test weights.
+struct SplitMix64(u64);
+
+impl SplitMix64 {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [-1, 1).
+    fn uniform_pm1(&mut self) -> f64 {
+        (self.next() >> 11) as f64 * (2.0 / (1u64 << 53) as f64) - 1.0
+    }
+}
