@@ -1,0 +1,326 @@
+//! A plain interleaved RGB image buffer and file I/O for it (PNG/JPEG via `image`,
+//! OpenEXR via `exr`).
+//!
+//! Reading returns the values *as stored*: LDR files give encoded values in [0, 1]
+//! (8- and 16-bit PNG divide by 255 / 65535; no transfer curve is undone here), EXR files give
+//! linear f32 values. Callers decide what the values mean (gamma, sRGB, linear).
+
+use crate::error::{GgxError, Result};
+use crate::float::Float;
+use std::io::Cursor;
+use std::path::Path;
+
+/// An `height`×`width` RGB image, row-major, channels interleaved (`data[(i·W + j)·3 + c]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RgbImage<T> {
+    width: usize,
+    height: usize,
+    data: Vec<T>,
+}
+
+impl<T: Float> RgbImage<T> {
+    /// A black image. Errors if either side is 0.
+    pub fn zeros(width: usize, height: usize) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(GgxError::Empty { what: "image" });
+        }
+        Ok(Self {
+            width,
+            height,
+            data: vec![T::ZERO; width * height * 3],
+        })
+    }
+
+    /// Wraps data whose size the caller computed from a valid non-empty size.
+    pub(crate) fn from_parts(width: usize, height: usize, data: Vec<T>) -> Self {
+        debug_assert!(width > 0 && height > 0 && data.len() == width * height * 3);
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
+    /// Wraps interleaved RGB data; errors if empty or if `data.len() != width·height·3`.
+    pub fn from_vec(width: usize, height: usize, data: Vec<T>) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(GgxError::Empty { what: "image" });
+        }
+        let expected = width * height * 3;
+        if data.len() != expected {
+            return Err(GgxError::SizeMismatch {
+                what: "RGB image buffer",
+                expected,
+                got: data.len(),
+            });
+        }
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Interleaved RGB values, row-major.
+    pub fn data(&self) -> &[T] {
+        &self.data
+    }
+
+    /// Mutable interleaved RGB values, row-major.
+    pub fn data_mut(&mut self) -> &mut [T] {
+        &mut self.data
+    }
+
+    /// Consumes the image, returning its buffer.
+    pub fn into_vec(self) -> Vec<T> {
+        self.data
+    }
+
+    /// The pixel at row `i`, column `j` (panics if out of bounds, like slice indexing).
+    pub fn pixel(&self, i: usize, j: usize) -> [T; 3] {
+        let k = (i * self.width + j) * 3;
+        [self.data[k], self.data[k + 1], self.data[k + 2]]
+    }
+
+    /// Overwrites the pixel at row `i`, column `j`.
+    pub fn set_pixel(&mut self, i: usize, j: usize, v: [T; 3]) {
+        let k = (i * self.width + j) * 3;
+        self.data[k..k + 3].copy_from_slice(&v);
+    }
+
+    /// Converts every value to another float type.
+    pub fn cast<U: Float>(&self) -> RgbImage<U> {
+        RgbImage {
+            width: self.width,
+            height: self.height,
+            data: self.data.iter().map(|v| U::from_f64(v.to_f64())).collect(),
+        }
+    }
+
+    /// Applies `f` to every value.
+    pub fn map(&self, f: impl Fn(T) -> T) -> Self {
+        Self {
+            width: self.width,
+            height: self.height,
+            data: self.data.iter().map(|&v| f(v)).collect(),
+        }
+    }
+
+    /// Row `i` and column `j` of the first non-finite value, if any.
+    pub fn first_non_finite(&self) -> Option<(usize, usize)> {
+        self.data
+            .iter()
+            .position(|v| !v.is_finite())
+            .map(|k| (k / 3 / self.width, (k / 3) % self.width))
+    }
+}
+
+/// How a file stores its values, decided by the extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FileKind {
+    /// `.exr`: linear f32 values, no transfer curve.
+    Exr,
+    /// `.png`, `.jpg`, `.jpeg`: 8/16-bit encoded values in [0, 1].
+    Ldr,
+}
+
+impl FileKind {
+    /// The kind of a path, by its (case-insensitive) extension.
+    pub fn of(path: &Path) -> Result<Self> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("exr") => Ok(FileKind::Exr),
+            Some("png" | "jpg" | "jpeg") => Ok(FileKind::Ldr),
+            _ => Err(GgxError::UnsupportedFormat {
+                path: path.to_path_buf(),
+            }),
+        }
+    }
+}
+
+/// Reads an RGB image file (gray is expanded, alpha is dropped). EXR values are checked to
+/// be finite (NaN/Inf → [`GgxError::NonFinite`] wrapped with the path).
+pub fn read_rgb(path: &Path) -> Result<(RgbImage<f32>, FileKind)> {
+    let kind = FileKind::of(path)?;
+    let bytes = std::fs::read(path).map_err(|error| GgxError::Io {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    if bytes.is_empty() {
+        return Err(GgxError::Decode {
+            path: path.to_path_buf(),
+            reason: "the file is empty (0 bytes)".into(),
+        });
+    }
+    let img = match kind {
+        FileKind::Ldr => decode_ldr(&bytes),
+        FileKind::Exr => decode_exr(&bytes),
+    }
+    .map_err(|reason| GgxError::Decode {
+        path: path.to_path_buf(),
+        reason,
+    })?;
+    let img = RgbImage::from_vec(img.0, img.1, img.2).map_err(|e| e.in_file(path))?;
+    if let Some((row, col)) = img.first_non_finite() {
+        return Err(GgxError::NonFinite {
+            what: "image",
+            row,
+            col,
+        }
+        .in_file(path));
+    }
+    Ok((img, kind))
+}
+
+fn decode_ldr(bytes: &[u8]) -> std::result::Result<(usize, usize, Vec<f32>), String> {
+    let reader = ::image::ImageReader::new(Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| e.to_string())?;
+    let dynamic = reader.decode().map_err(|e| e.to_string())?;
+    let rgb = dynamic.to_rgb32f();
+    let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+    Ok((w, h, rgb.into_raw()))
+}
+
+fn decode_exr(bytes: &[u8]) -> std::result::Result<(usize, usize, Vec<f32>), String> {
+    use exr::prelude::*;
+    type Pixels = (usize, Vec<f32>);
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgba_channels(
+            |res: Vec2<usize>, _: &RgbaChannels| -> Pixels {
+                (res.width(), vec![0.0; res.width() * res.height() * 3])
+            },
+            |px: &mut Pixels, pos: Vec2<usize>, (r, g, b, _a): (f32, f32, f32, f32)| {
+                let k = (pos.y() * px.0 + pos.x()) * 3;
+                px.1[k] = r;
+                px.1[k + 1] = g;
+                px.1[k + 2] = b;
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(|e| e.to_string())?;
+    let size = image.layer_data.size;
+    Ok((
+        size.width(),
+        size.height(),
+        image.layer_data.channel_data.pixels.1,
+    ))
+}
+
+/// PNG sample depth.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PngDepth {
+    /// 8 bits per channel.
+    Eight,
+    /// 16 bits per channel.
+    Sixteen,
+}
+
+/// Encodes an RGB image as PNG bytes. Values are *already encoded* (gamma/sRGB applied by the
+/// caller), clamped to [0, 1] and rounded to the nearest code; NaN becomes 0.
+pub fn encode_png(img: &RgbImage<f32>, depth: PngDepth) -> Result<Vec<u8>> {
+    let (w, h) = dims_u32(img)?;
+    let q = |v: f32, max: f32| (v.max(0.0).min(1.0) * max).round();
+    let dynamic = match depth {
+        PngDepth::Eight => {
+            let raw: Vec<u8> = img.data().iter().map(|&v| q(v, 255.0) as u8).collect();
+            ::image::RgbImage::from_raw(w, h, raw).map(::image::DynamicImage::ImageRgb8)
+        }
+        PngDepth::Sixteen => {
+            let raw: Vec<u16> = img.data().iter().map(|&v| q(v, 65535.0) as u16).collect();
+            ::image::ImageBuffer::from_raw(w, h, raw).map(::image::DynamicImage::ImageRgb16)
+        }
+    };
+    let dynamic = dynamic.ok_or_else(|| GgxError::InvalidArgument("PNG buffer size".into()))?;
+    let mut out = Cursor::new(Vec::new());
+    dynamic
+        .write_to(&mut out, ::image::ImageFormat::Png)
+        .map_err(|e| GgxError::Encode {
+            path: "<png>".into(),
+            reason: e.to_string(),
+        })?;
+    Ok(out.into_inner())
+}
+
+/// Encodes an RGB image as an OpenEXR file (f32 channels R, G, B; linear values as given).
+pub fn encode_exr(img: &RgbImage<f32>) -> Result<Vec<u8>> {
+    use exr::prelude::*;
+    let (w, h) = (img.width(), img.height());
+    let data = img.data();
+    let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
+        let k = (pos.y() * w + pos.x()) * 3;
+        (data[k], data[k + 1], data[k + 2])
+    });
+    let image = Image::from_channels((w, h), channels);
+    let mut out = Cursor::new(Vec::new());
+    image
+        .write()
+        .to_buffered(&mut out)
+        .map_err(|e| GgxError::Encode {
+            path: "<exr>".into(),
+            reason: e.to_string(),
+        })?;
+    Ok(out.into_inner())
+}
+
+/// Encodes for the file kind of `path` (`.png` with the given depth, or `.exr` f32) and
+/// writes the file. Not atomic; the CLI has an atomic writer.
+pub fn write_rgb(path: &Path, img: &RgbImage<f32>, depth: PngDepth) -> Result<()> {
+    let bytes = encode_for_path(path, img, depth)?;
+    std::fs::write(path, bytes).map_err(|error| GgxError::Io {
+        path: path.to_path_buf(),
+        error,
+    })
+}
+
+/// Encodes `img` in the format named by the extension of `path`: `.exr` (f32, values as
+/// given) or `.png` (values already encoded, clamped to [0, 1]). JPEG output is not offered.
+pub fn encode_for_path(path: &Path, img: &RgbImage<f32>, depth: PngDepth) -> Result<Vec<u8>> {
+    let with_path = |e: GgxError| match e {
+        GgxError::Encode { reason, .. } => GgxError::Encode {
+            path: path.to_path_buf(),
+            reason,
+        },
+        e => e,
+    };
+    match FileKind::of(path)? {
+        FileKind::Exr => encode_exr(img).map_err(with_path),
+        FileKind::Ldr => {
+            let is_png = path
+                .extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+            if !is_png {
+                return Err(GgxError::UnsupportedFormat {
+                    path: path.to_path_buf(),
+                });
+            }
+            encode_png(img, depth).map_err(with_path)
+        }
+    }
+}
+
+fn dims_u32(img: &RgbImage<f32>) -> Result<(u32, u32)> {
+    let w = u32::try_from(img.width())
+        .map_err(|_| GgxError::InvalidArgument("image too wide for PNG".into()))?;
+    let h = u32::try_from(img.height())
+        .map_err(|_| GgxError::InvalidArgument("image too tall for PNG".into()))?;
+    Ok((w, h))
+}

@@ -1,0 +1,36 @@
+//! `nam-ggx` — the analytic GGX SVBRDF reference of the nam project (DESIGN.md §3, §7, §8).
+//!
+//! - [`maps`]: SVBRDF parameter maps and the 4-panel / separate-file formats.
+//! - [`geometry`]: pixel positions, the capture camera, per-pixel ωi/ωo/ωh.
+//! - [`brdf`]: pointwise GGX, generic over `f32`/`f64` ([`Float`]).
+//! - [`render`]: a whole map for one light and viewer (rayon).
+//! - [`color`]: log compression, sRGB and gamma curves, the display transform.
+//! - [`protocol`]: seeded Reflect / Identity / Hemisphere samplers.
+//! - [`imageio`]: a plain RGB buffer and PNG/EXR encode/decode.
+//!
+//! Radiance convention everywhere: `R = π · f_r(ωi, ωo) · max(0, n·ωi)` for a unit light
+//! without inverse-square falloff; frames are the surface frame (material on z = 0 spanning
+//! [−1, 1]², z up). This crate knows nothing about the networks.
+
+#![forbid(unsafe_code)]
+
+pub mod brdf;
+pub mod color;
+mod error;
+pub mod float;
+pub mod geometry;
+pub mod imageio;
+pub mod maps;
+pub mod protocol;
+pub mod render;
+pub mod vec3;
+
+pub use brdf::{GgxPoint, eval};
+pub use error::{GgxError, Result};
+pub use float::Float;
+pub use geometry::{CAPTURE_DISTANCE, Directions, Light, View};
+pub use imageio::RgbImage;
+pub use maps::{MapFiles, SvbrdfMaps};
+pub use protocol::{LightView, Protocol, ProtocolSampler, sample_protocol};
+pub use render::{RenderSettings, render};
+pub use vec3::{Vec3, Vec3d, Vec3f};
