@@ -1,0 +1,416 @@
+//! Typed launchers for every kernel: they check shapes and record one [`Dispatch`] each.
+//! Tensors are NCHW with batch 1, addressed as (buffer, element offset) views so that
+//! concatenations are channel offsets into one buffer.
+
+use crate::context::{Dispatch, GpuContext, PipelineKey, groups_1d, linear_groups};
+use crate::error::{GpuError, Result};
+use crate::shaders::{Family, Precision};
+
+/// A tensor view: a storage buffer and the element offset where the tensor starts.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct View<'a> {
+    pub buf: &'a wgpu::Buffer,
+    pub base: u32,
+}
+
+impl<'a> View<'a> {
+    pub fn new(buf: &'a wgpu::Buffer, base: u64) -> Result<Self> {
+        let base = u32::try_from(base).map_err(|_| GpuError::Size {
+            what: "tensor offset",
+            reason: format!("{base} does not fit in 32 bits"),
+        })?;
+        Ok(Self { buf, base })
+    }
+}
+
+/// Activation fused into a kernel's epilogue (codes match the shaders).
+#[cfg_attr(not(test), allow(dead_code, reason = "standalone kernel variant, exercised by the kernel tests"))]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Act {
+    None,
+    Relu,
+    Leaky(f32),
+    Sigmoid,
+}
+
+impl Act {
+    fn code(self) -> (u32, f32) {
+        match self {
+            Act::None => (0, 0.0),
+            Act::Relu => (1, 0.0),
+            Act::Leaky(s) => (2, s),
+            Act::Sigmoid => (3, 0.0),
+        }
+    }
+}
+
+/// Geometry of a 2-D convolution (input [cin, h, w], kernel k x k, output [cout, ho, wo]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ConvShape {
+    pub cin: u32,
+    pub h: u32,
+    pub w: u32,
+    pub cout: u32,
+    pub k: u32,
+    pub stride: u32,
+    pub pad: u32,
+}
+
+impl ConvShape {
+    /// Output height and width (PyTorch's floor formula).
+    pub fn out_hw(&self) -> (u32, u32) {
+        (
+            (self.h + 2 * self.pad - self.k) / self.stride + 1,
+            (self.w + 2 * self.pad - self.k) / self.stride + 1,
+        )
+    }
+}
+
+fn f(v: f32) -> u32 {
+    v.to_bits()
+}
+
+/// Conv2d with replicate padding: `dst = act(conv(src * norm_scale + norm_shift) + bias)`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn conv2d(
+    ctx: &GpuContext,
+    precision: Precision,
+    src: View<'_>,
+    weight: &wgpu::Buffer,
+    bias: Option<&wgpu::Buffer>,
+    norm: Option<&wgpu::Buffer>,
+    dst: View<'_>,
+    s: ConvShape,
+    act: Act,
+) -> Result<Dispatch> {
+    if s.k == 0 || s.stride == 0 || s.h + 2 * s.pad < s.k || s.w + 2 * s.pad < s.k {
+        return Err(GpuError::Size {
+            what: "conv2d",
+            reason: format!("{s:?} has no output"),
+        });
+    }
+    let (ho, wo) = s.out_hw();
+    let flags = u32::from(bias.is_some()) | (u32::from(norm.is_some()) << 1);
+    let (act_code, slope) = act.code();
+    let words = [
+        s.cin, s.h, s.w, s.cout, ho, wo, s.stride, s.pad, src.base, dst.base, flags, act_code,
+        f(slope), 0, 0, 0,
+    ];
+    let key = PipelineKey {
+        family: Family::Conv2d,
+        entry: "conv2d",
+        precision,
+        constants: vec![("K", s.k)],
+    };
+    let groups = [groups_1d(wo, 8)?, groups_1d(ho, 8)?, groups_1d(s.cout, 4)?];
+    ctx.dispatch(
+        &key,
+        Some(&words),
+        &[
+            src.buf,
+            weight,
+            bias.unwrap_or(ctx.dummy()),
+            norm.unwrap_or(ctx.dummy()),
+            dst.buf,
+        ],
+        groups,
+    )
+}
+
+/// Transposed conv (PyTorch ConvTranspose2d, weight [cin, cout, k, k]) + bias + optional ReLU.
+/// Output is `(h - 1) * stride - 2 pad + k` per side.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn conv_transpose2d(
+    ctx: &GpuContext,
+    precision: Precision,
+    src: View<'_>,
+    weight: &wgpu::Buffer,
+    bias: Option<&wgpu::Buffer>,
+    dst: View<'_>,
+    s: ConvShape,
+    relu: bool,
+) -> Result<Dispatch> {
+    if s.k == 0 || s.stride == 0 || (s.h - 1) * s.stride + s.k <= 2 * s.pad {
+        return Err(GpuError::Size {
+            what: "conv_transpose2d",
+            reason: format!("{s:?} has no output"),
+        });
+    }
+    let ho = (s.h - 1) * s.stride + s.k - 2 * s.pad;
+    let wo = (s.w - 1) * s.stride + s.k - 2 * s.pad;
+    let words = [
+        s.cin,
+        s.h,
+        s.w,
+        s.cout,
+        ho,
+        wo,
+        s.pad,
+        src.base,
+        dst.base,
+        u32::from(bias.is_some()),
+        u32::from(relu),
+        0,
+    ];
+    let key = PipelineKey {
+        family: Family::ConvTranspose,
+        entry: "conv_transpose2d",
+        precision,
+        constants: vec![("K", s.k), ("S", s.stride)],
+    };
+    let groups = [groups_1d(wo, 8)?, groups_1d(ho, 8)?, groups_1d(s.cout, 1)?];
+    ctx.dispatch(
+        &key,
+        Some(&words),
+        &[src.buf, weight, bias.unwrap_or(ctx.dummy()), dst.buf],
+        groups,
+    )
+}
+
+/// InstanceNorm statistics of `src` [channels, hw] into `norm` (f32 [channels, 2]).
+pub(crate) fn instance_norm_stats(
+    ctx: &GpuContext,
+    precision: Precision,
+    src: View<'_>,
+    channels: u32,
+    hw: u32,
+    eps: f32,
+    norm: &wgpu::Buffer,
+) -> Result<Dispatch> {
+    let words = [channels, hw, src.base, 0, f(eps), 0, 0, 0];
+    let key = PipelineKey {
+        family: Family::InstanceNorm,
+        entry: "instance_norm_stats",
+        precision,
+        constants: vec![],
+    };
+    // `dst` is unused by this entry point; the dummy fills its slot.
+    ctx.dispatch(
+        &key,
+        Some(&words),
+        &[src.buf, norm, ctx.dummy()],
+        [groups_1d(channels, 1)?, 1, 1],
+    )
+}
+
+#[cfg_attr(not(test), allow(dead_code, reason = "standalone kernel variant, exercised by the kernel tests"))]
+/// `dst = src * norm[2c] + norm[2c + 1]` with statistics from [`instance_norm_stats`].
+pub(crate) fn instance_norm_apply(
+    ctx: &GpuContext,
+    precision: Precision,
+    src: View<'_>,
+    channels: u32,
+    hw: u32,
+    norm: &wgpu::Buffer,
+    dst: View<'_>,
+) -> Result<Dispatch> {
+    let words = [channels, hw, src.base, dst.base, 0, 0, 0, 0];
+    let key = PipelineKey {
+        family: Family::InstanceNorm,
+        entry: "instance_norm_apply",
+        precision,
+        constants: vec![],
+    };
+    ctx.dispatch(
+        &key,
+        Some(&words),
+        &[src.buf, norm, dst.buf],
+        linear_groups(u64::from(channels) * u64::from(hw), 256)?,
+    )
+}
+
+/// Block tail after an HA-Conv: see `shaders/ha_gate.wgsl`.
+#[cfg_attr(not(test), allow(dead_code, reason = "standalone kernel variant, exercised by the kernel tests"))]
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum GateTail<'a> {
+    /// `y`
+    Affine,
+    /// `relu(y)`
+    Relu,
+    /// `relu(y + res)`
+    Residual(View<'a>),
+}
+
+/// `dst = tail((sigmoid(a) * leaky(b) + c) * affine_scale + affine_shift)`, all [channels, hw].
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn ha_gate(
+    ctx: &GpuContext,
+    precision: Precision,
+    a: &wgpu::Buffer,
+    b: &wgpu::Buffer,
+    c: &wgpu::Buffer,
+    affine: &wgpu::Buffer,
+    tail: GateTail<'_>,
+    dst: View<'_>,
+    channels: u32,
+    hw: u32,
+    slope: f32,
+) -> Result<Dispatch> {
+    let (mode, res) = match tail {
+        GateTail::Affine => (0, None),
+        GateTail::Relu => (1, None),
+        GateTail::Residual(v) => (2, Some(v)),
+    };
+    let words = [
+        channels,
+        hw,
+        mode,
+        res.map_or(0, |v| v.base),
+        dst.base,
+        f(slope),
+        0,
+        0,
+    ];
+    let key = PipelineKey {
+        family: Family::HaGate,
+        entry: "ha_gate",
+        precision,
+        constants: vec![],
+    };
+    ctx.dispatch(
+        &key,
+        Some(&words),
+        &[a, b, c, affine, res.map_or(ctx.dummy(), |v| v.buf), dst.buf],
+        linear_groups(u64::from(channels) * u64::from(hw), 256)?,
+    )
+}
+
+/// Elementwise entry points of `shaders/elementwise.wgsl`.
+#[cfg_attr(not(test), allow(dead_code, reason = "standalone kernel variant, exercised by the kernel tests"))]
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Elementwise<'a> {
+    /// Per-channel `x * ab[2c] + ab[2c + 1]` with `hw` elements per channel.
+    Affine { ab: &'a wgpu::Buffer, hw: u32 },
+    /// `relu(x + other)`.
+    AddRelu(View<'a>),
+    /// LeakyReLU with the given negative slope.
+    Leaky(f32),
+    /// Logistic sigmoid.
+    Sigmoid,
+    /// Arc tangent.
+    Atan,
+    /// Plain copy.
+    Copy,
+}
+
+/// Applies `op` to `n` elements of `src`, writing `dst`.
+pub(crate) fn elementwise(
+    ctx: &GpuContext,
+    precision: Precision,
+    op: Elementwise<'_>,
+    src: View<'_>,
+    dst: View<'_>,
+    n: u32,
+) -> Result<Dispatch> {
+    let (entry, hw, src2, ab, slope) = match op {
+        Elementwise::Affine { ab, hw } => ("affine", hw, None, Some(ab), 0.0),
+        Elementwise::AddRelu(v) => ("add_relu", 1, Some(v), None, 0.0),
+        Elementwise::Leaky(s) => ("leaky_relu", 1, None, None, s),
+        Elementwise::Sigmoid => ("sigmoid_act", 1, None, None, 0.0),
+        Elementwise::Atan => ("atan_act", 1, None, None, 0.0),
+        Elementwise::Copy => ("copy", 1, None, None, 0.0),
+    };
+    let words = [
+        n,
+        hw.max(1),
+        src.base,
+        src2.map_or(0, |v| v.base),
+        dst.base,
+        f(slope),
+        0,
+        0,
+    ];
+    let key = PipelineKey {
+        family: Family::Elementwise,
+        entry,
+        precision,
+        constants: vec![],
+    };
+    ctx.dispatch(
+        &key,
+        Some(&words),
+        &[
+            src.buf,
+            src2.map_or(ctx.dummy(), |v| v.buf),
+            ab.unwrap_or(ctx.dummy()),
+            dst.buf,
+        ],
+        linear_groups(u64::from(n), 256)?,
+    )
+}
+
+/// Positional encoding of `n` rows of 9 direction values into rows of `9 + 18 octaves`
+/// values starting at `dst.base + r * out_stride`.
+pub(crate) fn pos_enc(
+    ctx: &GpuContext,
+    precision: Precision,
+    dirs: &wgpu::Buffer,
+    n: u32,
+    octaves: u32,
+    dst: View<'_>,
+    out_stride: u32,
+) -> Result<Dispatch> {
+    let words = [n, out_stride, dst.base, 0];
+    let key = PipelineKey {
+        family: Family::PosEnc,
+        entry: "pos_enc",
+        precision,
+        constants: vec![("OCTAVES", octaves)],
+    };
+    ctx.dispatch(
+        &key,
+        Some(&words),
+        &[dirs, dst.buf],
+        linear_groups(u64::from(n) * 9, 64)?,
+    )
+}
+
+/// Row-major matrix layout of one operand: `rows` rows of which columns
+/// `[base, base + width)` are used, `stride` elements apart.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Rows<'a> {
+    pub view: View<'a>,
+    pub stride: u32,
+}
+
+/// `y[m, n] = act(sum_k x[m, k] * w[n, k])` for `m < rows`, `n < cols`, `k < inner`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn matmul(
+    ctx: &GpuContext,
+    precision: Precision,
+    x: Rows<'_>,
+    w: &wgpu::Buffer,
+    y: Rows<'_>,
+    rows: u32,
+    cols: u32,
+    inner: u32,
+    act: Act,
+) -> Result<Dispatch> {
+    let (act_code, slope) = act.code();
+    let words = [
+        rows,
+        cols,
+        inner,
+        x.stride,
+        x.view.base,
+        y.stride,
+        y.view.base,
+        act_code,
+        f(slope),
+        0,
+        0,
+        0,
+    ];
+    let key = PipelineKey {
+        family: Family::Matmul,
+        entry: "matmul",
+        precision,
+        constants: vec![],
+    };
+    ctx.dispatch(
+        &key,
+        Some(&words),
+        &[x.view.buf, w, y.view.buf],
+        [groups_1d(cols, 64)?, groups_1d(rows, 64)?, 1],
+    )
+}

@@ -1,0 +1,49 @@
+//! Tiny probes on a device: the smoke kernel and the FMA throughput probe used by benches.
+
+use std::time::Instant;
+
+use crate::context::{GpuContext, PipelineKey};
+use crate::error::Result;
+use crate::shaders::{Family, Precision};
+
+/// Runs `shaders/smoke.wgsl` (`x -> 2x + 1`) on `data` and reads the result back.
+pub fn smoke(ctx: &GpuContext, data: &[f32]) -> Result<Vec<f32>> {
+    let buf = ctx.upload("smoke", data, Precision::F32)?;
+    let key = PipelineKey {
+        family: Family::Smoke,
+        entry: "smoke",
+        precision: Precision::F32,
+        constants: vec![],
+    };
+    let groups = crate::context::groups_1d(u32::try_from(data.len()).unwrap_or(u32::MAX), 64)?;
+    let d = ctx.dispatch(&key, None, &[&buf.buffer], [groups, 1, 1])?;
+    ctx.run(&[d])?;
+    ctx.read(&buf, data.len() as u64)
+}
+
+/// Measures f32 FMA throughput with `shaders/fma_peak.wgsl`: `groups` workgroups of 256
+/// invocations, `iters` iterations of 64 flops each. Returns GFLOP/s of the best of `reps`
+/// timed runs (after one warm-up).
+pub fn fma_peak_gflops(ctx: &GpuContext, groups: u32, iters: u32, reps: u32) -> Result<f64> {
+    let out = ctx.storage("fma out", u64::from(groups) * 256, Precision::F32)?;
+    let key = PipelineKey {
+        family: Family::FmaPeak,
+        entry: "fma_peak",
+        precision: Precision::F32,
+        constants: vec![],
+    };
+    let d = ctx.dispatch(&key, Some(&[iters, 1.0f32.to_bits(), 0, 0]), &[&out.buffer], [groups, 1, 1])?;
+    ctx.run(std::slice::from_ref(&d))?;
+    ctx.wait()?;
+    let flops = f64::from(groups) * 256.0 * f64::from(iters) * 64.0;
+    let mut best = f64::INFINITY;
+    for _ in 0..reps.max(1) {
+        let t = Instant::now();
+        ctx.run(std::slice::from_ref(&d))?;
+        ctx.wait()?;
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    // Keep the result observable so the kernel cannot be elided.
+    let _ = ctx.read(&out, 1)?;
+    Ok(flops / best / 1e9)
+}

@@ -1,0 +1,200 @@
+//! WGSL sources (`shaders/`, one kernel family per file) and their precision variants.
+//!
+//! Every source declares its storage type with the line [`STORAGE_ALIAS_F32`]; the f16 variant
+//! replaces it with `alias st = f16;` and prepends `enable f16;`. Kernels load `f32(x)` and
+//! store `st(v)`, so arithmetic and accumulation stay f32 in both variants.
+
+use std::borrow::Cow;
+
+/// Storage (and transfer) precision of activations and weights on the device.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Precision {
+    /// 32-bit floats everywhere.
+    F32,
+    /// 16-bit storage, f32 arithmetic; needs `Features::SHADER_F16`.
+    F16,
+}
+
+impl Precision {
+    /// Bytes per stored element.
+    pub fn elem_bytes(self) -> u64 {
+        match self {
+            Precision::F32 => 4,
+            Precision::F16 => 2,
+        }
+    }
+}
+
+/// The line every precision-generic shader starts its declarations with.
+pub const STORAGE_ALIAS_F32: &str = "alias st = f32;";
+
+/// A kernel family: one WGSL file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Family {
+    /// `conv2d.wgsl`: direct convolution, replicate padding.
+    Conv2d,
+    /// `conv_transpose.wgsl`: transposed convolution.
+    ConvTranspose,
+    /// `instance_norm.wgsl`: statistics and application.
+    InstanceNorm,
+    /// `ha_gate.wgsl`: HA-Conv gating + folded BN + block tail.
+    HaGate,
+    /// `elementwise.wgsl`: affine, add+relu, activations, copy.
+    Elementwise,
+    /// `pos_enc.wgsl`: positional encoding with exact range reduction.
+    PosEnc,
+    /// `matmul.wgsl`: tiled matmul with fused activation.
+    Matmul,
+    /// `fma_peak.wgsl`: FMA throughput probe (f32 only).
+    FmaPeak,
+    /// `smoke.wgsl`: one-line smoke test (f32 only).
+    Smoke,
+}
+
+/// Kind of one binding of a family's bind group 0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Binding {
+    Uniform,
+    Read,
+    ReadWrite,
+}
+
+impl Family {
+    /// Every family, for validation tests.
+    pub const ALL: [Family; 9] = [
+        Family::Conv2d,
+        Family::ConvTranspose,
+        Family::InstanceNorm,
+        Family::HaGate,
+        Family::Elementwise,
+        Family::PosEnc,
+        Family::Matmul,
+        Family::FmaPeak,
+        Family::Smoke,
+    ];
+
+    /// File name under `shaders/`.
+    pub fn file_name(self) -> &'static str {
+        match self {
+            Family::Conv2d => "conv2d.wgsl",
+            Family::ConvTranspose => "conv_transpose.wgsl",
+            Family::InstanceNorm => "instance_norm.wgsl",
+            Family::HaGate => "ha_gate.wgsl",
+            Family::Elementwise => "elementwise.wgsl",
+            Family::PosEnc => "pos_enc.wgsl",
+            Family::Matmul => "matmul.wgsl",
+            Family::FmaPeak => "fma_peak.wgsl",
+            Family::Smoke => "smoke.wgsl",
+        }
+    }
+
+    /// The f32 source as stored in `shaders/`.
+    pub fn base_source(self) -> &'static str {
+        match self {
+            Family::Conv2d => include_str!("../../../shaders/conv2d.wgsl"),
+            Family::ConvTranspose => include_str!("../../../shaders/conv_transpose.wgsl"),
+            Family::InstanceNorm => include_str!("../../../shaders/instance_norm.wgsl"),
+            Family::HaGate => include_str!("../../../shaders/ha_gate.wgsl"),
+            Family::Elementwise => include_str!("../../../shaders/elementwise.wgsl"),
+            Family::PosEnc => include_str!("../../../shaders/pos_enc.wgsl"),
+            Family::Matmul => include_str!("../../../shaders/matmul.wgsl"),
+            Family::FmaPeak => include_str!("../../../shaders/fma_peak.wgsl"),
+            Family::Smoke => include_str!("../../../shaders/smoke.wgsl"),
+        }
+    }
+
+    /// Whether the family has an f16 storage variant.
+    pub fn has_f16(self) -> bool {
+        !matches!(self, Family::FmaPeak | Family::Smoke)
+    }
+
+    /// Source for `precision`; `None` when the family has no such variant.
+    pub fn source(self, precision: Precision) -> Option<Cow<'static, str>> {
+        let base = self.base_source();
+        match precision {
+            Precision::F32 => Some(Cow::Borrowed(base)),
+            Precision::F16 if self.has_f16() => Some(Cow::Owned(format!(
+                "enable f16;\n{}",
+                base.replacen(STORAGE_ALIAS_F32, "alias st = f16;", 1)
+            ))),
+            Precision::F16 => None,
+        }
+    }
+
+    /// Bind group 0 of every entry point of the family, in binding order.
+    pub(crate) fn bindings(self) -> &'static [Binding] {
+        use Binding::{Read as R, ReadWrite as W, Uniform as U};
+        match self {
+            Family::Conv2d => &[U, R, R, R, R, W],
+            Family::ConvTranspose => &[U, R, R, R, W],
+            Family::InstanceNorm => &[U, R, W, W],
+            Family::HaGate => &[U, R, R, R, R, R, W],
+            Family::Elementwise => &[U, R, R, R, W],
+            Family::PosEnc => &[U, R, W],
+            Family::Matmul => &[U, R, R, W],
+            Family::FmaPeak => &[U, W],
+            Family::Smoke => &[W],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn validate(family: Family, precision: Precision) -> Result<(), String> {
+        let src = family
+            .source(precision)
+            .ok_or_else(|| format!("{family:?} has no {precision:?} variant"))?;
+        let module = naga::front::wgsl::parse_str(&src)
+            .map_err(|e| format!("{}: {}", family.file_name(), e.emit_to_string(&src)))?;
+        let caps = match precision {
+            Precision::F32 => naga::valid::Capabilities::default(),
+            Precision::F16 => naga::valid::Capabilities::SHADER_FLOAT16,
+        };
+        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
+            .validate(&module)
+            .map_err(|e| format!("{}: {}", family.file_name(), e.emit_to_string(&src)))?;
+        Ok(())
+    }
+
+    #[test]
+    fn every_shader_parses_and_validates_with_naga_f32() {
+        for family in Family::ALL {
+            if let Err(e) = validate(family, Precision::F32) {
+                panic!("{e}");
+            }
+        }
+    }
+
+    #[test]
+    fn every_f16_variant_parses_and_validates_with_naga() {
+        for family in Family::ALL.into_iter().filter(|f| f.has_f16()) {
+            if let Err(e) = validate(family, Precision::F16) {
+                panic!("{e}");
+            }
+        }
+    }
+
+    #[test]
+    fn precision_generic_shaders_declare_the_storage_alias_once() {
+        for family in Family::ALL.into_iter().filter(|f| f.has_f16()) {
+            let n = family.base_source().matches(STORAGE_ALIAS_F32).count();
+            assert_eq!(n, 1, "{} declares `{STORAGE_ALIAS_F32}` {n} times", family.file_name());
+            let f16 = family.source(Precision::F16).unwrap_or_default();
+            assert!(f16.contains("alias st = f16;") && !f16.contains(STORAGE_ALIAS_F32));
+        }
+    }
+
+    #[test]
+    fn bindings_match_the_shader_declarations() {
+        for family in Family::ALL {
+            let src = family.base_source();
+            let declared = src.matches("@binding(").count();
+            assert_eq!(declared, family.bindings().len(), "{}", family.file_name());
+            let read_write = src.matches("read_write>").count();
+            let expected = family.bindings().iter().filter(|b| **b == Binding::ReadWrite).count();
+            assert_eq!(read_write, expected, "{} read_write bindings", family.file_name());
+        }
+    }
+}

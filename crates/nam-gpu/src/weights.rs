@@ -1,0 +1,265 @@
+//! Uploading a validated [`nam_weights::Weights`] model to device buffers, once.
+
+use nam_weights::{Scope, Weights};
+
+use crate::context::{DeviceBuffer, GpuContext};
+use crate::error::{GpuError, Result};
+use crate::shaders::Precision;
+
+/// Device weights of one HA-Conv (in -> out, stride s).
+#[derive(Debug)]
+pub(crate) struct HaWeights {
+    pub gate: DeviceBuffer,
+    pub feat: DeviceBuffer,
+    pub inc1a: DeviceBuffer,
+    pub inc1b: DeviceBuffer,
+    pub inc2: DeviceBuffer,
+}
+
+/// Device weights of a BasicBlock; `bn*` are interleaved `[out, 2]` (scale, shift).
+#[derive(Debug)]
+pub(crate) struct BasicWeights {
+    pub cin: u32,
+    pub cout: u32,
+    pub stride: u32,
+    pub ha1: HaWeights,
+    pub bn1: DeviceBuffer,
+    pub ha2: HaWeights,
+    pub bn2: DeviceBuffer,
+    /// conv1x1 weight and folded-BN bias, when the shape changes.
+    pub down: Option<(DeviceBuffer, DeviceBuffer)>,
+}
+
+/// Device weights of a ReverseBlock (weights then folded-BN biases).
+#[derive(Debug)]
+pub(crate) struct ReverseWeights {
+    pub cin: u32,
+    pub cout: u32,
+    pub up4: (DeviceBuffer, DeviceBuffer),
+    pub conv: (DeviceBuffer, DeviceBuffer),
+    pub up2: (DeviceBuffer, DeviceBuffer),
+}
+
+/// The U-Net `M_est` on the device.
+#[derive(Debug)]
+pub(crate) struct UnetWeights {
+    pub width: u32,
+    pub in_channels: u32,
+    pub param_channels: u32,
+    pub eps: f32,
+    pub ha_slope: f32,
+    pub stem: DeviceBuffer,
+    pub enc: Vec<[BasicWeights; 2]>,
+    pub dec_reverse: Vec<ReverseWeights>,
+    pub dec_basic: Vec<BasicWeights>,
+    pub dec4: [BasicWeights; 2],
+    pub head: DeviceBuffer,
+}
+
+/// One bias-free linear layer `[out, in]` with the activation slope after it (`None`: none).
+#[derive(Debug)]
+pub(crate) struct Linear {
+    pub weight: DeviceBuffer,
+    pub out: u32,
+    pub inp: u32,
+    pub slope: Option<f32>,
+}
+
+/// `M_render` on the device: ND_enc layers and the render MLP with l0·l1 folded.
+#[derive(Debug)]
+pub(crate) struct RenderWeights {
+    pub octaves: u32,
+    pub encoding: u32,
+    pub param_channels: u32,
+    pub nd: Vec<Linear>,
+    pub mlp: Vec<Linear>,
+}
+
+fn u(v: usize, what: &'static str) -> Result<u32> {
+    u32::try_from(v).map_err(|_| GpuError::Size {
+        what,
+        reason: format!("{v} does not fit in 32 bits"),
+    })
+}
+
+struct Uploader<'a> {
+    ctx: &'a GpuContext,
+    precision: Precision,
+}
+
+impl Uploader<'_> {
+    fn get(&self, s: &Scope<'_>, name: &str, shape: &[usize]) -> Result<DeviceBuffer> {
+        let data = s.get(name, shape)?;
+        let label = format!("{}.{name}", s.prefix());
+        self.ctx.upload(&label, data, self.precision)
+    }
+
+    fn affine(&self, s: &Scope<'_>, name: &str, n: usize) -> Result<DeviceBuffer> {
+        let scale = s.get(&format!("{name}.scale"), &[n])?;
+        let shift = s.get(&format!("{name}.shift"), &[n])?;
+        let ab: Vec<f32> = scale.iter().zip(shift).flat_map(|(&a, &b)| [a, b]).collect();
+        self.ctx
+            .upload(&format!("{}.{name}", s.prefix()), &ab, self.precision)
+    }
+
+    fn ha(&self, s: &Scope<'_>, cin: usize, cout: usize) -> Result<HaWeights> {
+        Ok(HaWeights {
+            gate: self.get(s, "gate.weight", &[cout, cin, 3, 3])?,
+            feat: self.get(s, "feat.weight", &[cout, cin, 3, 3])?,
+            inc1a: self.get(s, "inc1a.weight", &[cout, cin, 3, 3])?,
+            inc1b: self.get(s, "inc1b.weight", &[cout / 2, cout, 3, 3])?,
+            inc2: self.get(s, "inc2.weight", &[cout / 2, cin, 3, 3])?,
+        })
+    }
+
+    fn basic(&self, s: &Scope<'_>, cin: usize, cout: usize, stride: usize) -> Result<BasicWeights> {
+        let down = if cin != cout || stride != 1 {
+            Some((
+                self.get(s, "down.weight", &[cout, cin, 1, 1])?,
+                self.get(s, "down.bias", &[cout])?,
+            ))
+        } else {
+            None
+        };
+        Ok(BasicWeights {
+            cin: u(cin, "channels")?,
+            cout: u(cout, "channels")?,
+            stride: u(stride, "stride")?,
+            ha1: self.ha(&s.scope("ha1"), cin, cout)?,
+            bn1: self.affine(s, "bn1", cout)?,
+            ha2: self.ha(&s.scope("ha2"), cout, cout)?,
+            bn2: self.affine(s, "bn2", cout)?,
+            down,
+        })
+    }
+
+    fn reverse(&self, s: &Scope<'_>, cin: usize, cout: usize) -> Result<ReverseWeights> {
+        Ok(ReverseWeights {
+            cin: u(cin, "channels")?,
+            cout: u(cout, "channels")?,
+            up4: (
+                self.get(s, "up4.weight", &[cin, cout, 4, 4])?,
+                self.get(s, "up4.bias", &[cout])?,
+            ),
+            conv: (
+                self.get(s, "conv.weight", &[cout, cout, 3, 3])?,
+                self.get(s, "conv.bias", &[cout])?,
+            ),
+            up2: (
+                self.get(s, "up2.weight", &[cin, cout, 2, 2])?,
+                self.get(s, "up2.bias", &[cout])?,
+            ),
+        })
+    }
+}
+
+/// Uploads the U-Net (DESIGN §4, FORMAT.md tensor names).
+pub(crate) fn upload_unet(ctx: &GpuContext, weights: &Weights, precision: Precision) -> Result<UnetWeights> {
+    let cfg = weights.config();
+    let c = cfg.width;
+    let up = Uploader { ctx, precision };
+    let est = weights.scope("est");
+    let widths = [c, 2 * c, 4 * c, 8 * c];
+    let strides = [1, 2, 2, 2];
+    let mut enc = Vec::with_capacity(4);
+    let mut cin = c;
+    for k in 0..4 {
+        let stage = est.scope(&format!("enc{}", k + 1));
+        let b0 = up.basic(&stage.scope("0"), cin, widths[k], strides[k])?;
+        let b1 = up.basic(&stage.scope("1"), widths[k], widths[k], 1)?;
+        enc.push([b0, b1]);
+        cin = widths[k];
+    }
+    // dec1..dec3: ReverseBlock then BasicBlock; inputs 8C, 12C, 6C.
+    let dec_io = [(8 * c, 8 * c), (12 * c, 4 * c), (6 * c, 2 * c)];
+    let mut dec_reverse = Vec::with_capacity(3);
+    let mut dec_basic = Vec::with_capacity(3);
+    for (k, &(i, o)) in dec_io.iter().enumerate() {
+        let stage = est.scope(&format!("dec{}", k + 1));
+        dec_reverse.push(up.reverse(&stage.scope("0"), i, o)?);
+        dec_basic.push(up.basic(&stage.scope("1"), o, o, 1)?);
+    }
+    let dec4 = est.scope("dec4");
+    Ok(UnetWeights {
+        width: u(c, "width")?,
+        in_channels: u(cfg.in_channels, "in_channels")?,
+        param_channels: u(cfg.param_channels, "param_channels")?,
+        eps: cfg.norm_eps,
+        ha_slope: cfg.slopes.ha,
+        stem: up.get(&est, "stem.weight", &[c, cfg.in_channels, 7, 7])?,
+        enc,
+        dec_reverse,
+        dec_basic,
+        dec4: [
+            up.basic(&dec4.scope("0"), 3 * c, c, 1)?,
+            up.basic(&dec4.scope("1"), c, c, 1)?,
+        ],
+        head: up.get(&est, "head.weight", &[cfg.param_channels, c, 7, 7])?,
+    })
+}
+
+/// Uploads `M_render`, folding `render.l1 · render.l0` (no activation between them) into one
+/// matrix in f64.
+pub(crate) fn upload_render(ctx: &GpuContext, weights: &Weights, precision: Precision) -> Result<RenderWeights> {
+    let cfg = weights.config();
+    let up = Uploader { ctx, precision };
+    let nd_scope = weights.scope("nd_enc");
+    let n_nd = cfg.nd_enc.len() - 1;
+    let mut nd = Vec::with_capacity(n_nd);
+    for i in 0..n_nd {
+        let (inp, out) = (cfg.nd_enc[i], cfg.nd_enc[i + 1]);
+        nd.push(Linear {
+            weight: up.get(&nd_scope, &format!("l{i}.weight"), &[out, inp])?,
+            out: u(out, "width")?,
+            inp: u(inp, "width")?,
+            slope: (i + 1 < n_nd).then_some(cfg.slopes.nd_enc),
+        });
+    }
+    let r = &cfg.render;
+    let n_r = r.len() - 1;
+    if n_r < 2 {
+        return Err(GpuError::Unsupported(format!(
+            "render MLP with {n_r} layers (l0 and l1 are required)"
+        )));
+    }
+    let rs = weights.scope("render");
+    let w0 = rs.get("l0.weight", &[r[1], r[0]])?;
+    let w1 = rs.get("l1.weight", &[r[2], r[1]])?;
+    let mut folded = vec![0.0f32; r[2] * r[0]];
+    for (o, row) in folded.chunks_exact_mut(r[0]).enumerate() {
+        for (k, v) in row.iter_mut().enumerate() {
+            let s: f64 = (0..r[1])
+                .map(|m| f64::from(w1[o * r[1] + m]) * f64::from(w0[m * r[0] + k]))
+                .sum();
+            *v = s as f32;
+        }
+    }
+    let last_slope = |i: usize| {
+        if i + 1 == n_r {
+            cfg.slopes.render_out
+        } else {
+            cfg.slopes.render_hidden
+        }
+    };
+    let mut mlp = vec![Linear {
+        weight: ctx.upload("render.l0l1", &folded, precision)?,
+        out: u(r[2], "width")?,
+        inp: u(r[0], "width")?,
+        slope: Some(last_slope(1)),
+    }];
+    for i in 2..n_r {
+        mlp.push(Linear {
+            weight: up.get(&rs, &format!("l{i}.weight"), &[r[i + 1], r[i]])?,
+            out: u(r[i + 1], "width")?,
+            inp: u(r[i], "width")?,
+            slope: Some(last_slope(i)),
+        });
+    }
+    Ok(RenderWeights {
+        octaves: u(cfg.pe_octaves, "pe_octaves")?,
+        encoding: u(cfg.encoding_len(), "encoding")?,
+        param_channels: u(cfg.param_channels, "param_channels")?,
+        nd,
+        mlp,
+    })
+}

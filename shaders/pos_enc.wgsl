@@ -1,0 +1,69 @@
+// Positional encoding of the 9 direction values c = [wi, wo, wh] per query (DESIGN §4):
+//   enc[0..9] = c;  enc[9 + 18k + 2j] = sin(2^k pi c_j), enc[9 + 18k + 2j + 1] = cos(2^k pi c_j)
+// for octaves k in 0..OCTAVES. Arguments reach 2^15 pi, far outside the range where WGSL's
+// sin/cos are accurate, so the argument is reduced exactly: 2^k pi c = 2 pi t with
+// t = fract(2^(k-1) c) (a power-of-two scaling and fract are exact in binary floating point),
+// t folded to [-1/2, 1/2), then sin/cos(2 pi t) come from quadrant reduction and Taylor
+// polynomials on [-pi/4, pi/4] (error < 1e-7, independent of the platform's sin/cos).
+//
+// Input `dirs`: [n, 9] rows. Output `dst`: row r starts at out_base + r * out_stride.
+// One invocation per (row, j). Dispatch: 64-wide workgroups over n * 9, split over x and y.
+alias st = f32;
+
+override OCTAVES: u32 = 16u;
+
+struct PeParams {
+    n: u32,
+    out_stride: u32,
+    out_base: u32,
+    _pad0: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: PeParams;
+@group(0) @binding(1) var<storage, read> dirs: array<st>;
+@group(0) @binding(2) var<storage, read_write> dst: array<st>;
+
+const HALF_PI: f32 = 1.5707963267948966;
+
+// (sin(2 pi t), cos(2 pi t)) for t in [-1/2, 1/2].
+fn sincos_2pi(t: f32) -> vec2<f32> {
+    let u = 4.0 * t;             // exact
+    let q = round(u);            // quadrant in -2..2
+    let r = (u - q) * HALF_PI;   // u - q is exact; r in [-pi/4, pi/4]
+    let r2 = r * r;
+    // Taylor series to r^11 / r^12: truncation error below 2e-10 on [-pi/4, pi/4].
+    let s = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0
+        + r2 * (1.0 / 362880.0 + r2 * (-1.0 / 39916800.0))))));
+    let c = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40320.0
+        + r2 * (-1.0 / 3628800.0 + r2 * (1.0 / 479001600.0))))));
+    // sin/cos(q pi/2 + r) by quadrant.
+    switch u32(i32(q) & 3) {
+        case 1u: { return vec2<f32>(c, -s); }
+        case 2u: { return vec2<f32>(-s, -c); }
+        case 3u: { return vec2<f32>(-c, s); }
+        default: { return vec2<f32>(s, c); }
+    }
+}
+
+@compute @workgroup_size(64, 1, 1)
+fn pos_enc(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let idx = gid.x + gid.y * nwg.x * 64u;
+    if idx >= p.n * 9u {
+        return;
+    }
+    let row = idx / 9u;
+    let j = idx % 9u;
+    let x = f32(dirs[idx]);
+    let base = p.out_base + row * p.out_stride;
+    dst[base + j] = st(x);
+    var scale = 0.5;
+    for (var k = 0u; k < OCTAVES; k++) {
+        var t = fract(scale * x);
+        t = select(t, t - 1.0, t >= 0.5);
+        let sc = sincos_2pi(t);
+        let o = base + 9u + 18u * k + 2u * j;
+        dst[o] = st(sc.x);
+        dst[o + 1u] = st(sc.y);
+        scale *= 2.0;
+    }
+}
