@@ -29,6 +29,9 @@ pub mod probe;
 pub mod shaders;
 mod weights;
 
+#[cfg(test)]
+mod kernel_tests;
+
 pub use context::GpuContext;
 pub use device::{DeviceHandles, request_device};
 pub use error::{GpuError, Result};
