@@ -1,0 +1,70 @@
+"""Light/view sampling protocols (paper §3.1 and §4, DESIGN.md §6 and §8).
+
+All functions return light and view positions ``[B, K, 3]`` in surface units.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .ggx import CAPTURE_DISTANCE
+from .ggx import normalize as _normalize
+
+#: Hemisphere radius of the evaluation protocol (paper §4).
+HEMISPHERE_RADIUS = 4.0
+#: Standard deviation of the Gaussian perturbation of the highlight point and of the light distance.
+REFLECT_SIGMA = 2.0
+#: Smallest light distance from the highlight point of the Reflect protocol.
+REFLECT_MIN_DIST = 0.5
+
+
+def uniform_hemisphere(gen: torch.Generator, shape: tuple[int, ...], dtype=torch.float32) -> torch.Tensor:
+    """Directions uniform in solid angle over the upper hemisphere, ``[*shape, 3]``."""
+    z = torch.rand(shape, generator=gen, dtype=dtype)
+    phi = 2 * torch.pi * torch.rand(shape, generator=gen, dtype=dtype)
+    r = torch.sqrt(torch.clamp(1 - z * z, min=0))
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=-1)
+
+
+def reflect(gen: torch.Generator, batch: int, k: int, dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
+    """Reflect sampling: a highlight centred on a perturbed surface point (paper §3.1).
+
+    ``p = U[-1,1]² + N(0, 2)``; view uniform on the hemisphere of radius d; light on the mirror
+    direction of ``view - p`` about the surface normal at ``p``, at distance ``|N(0, 2)| + 0.5``.
+    """
+    shape = (batch, k)
+    p = 2 * torch.rand(*shape, 2, generator=gen, dtype=dtype) - 1
+    p = p + REFLECT_SIGMA * torch.randn(*shape, 2, generator=gen, dtype=dtype)
+    p = torch.cat([p, torch.zeros(*shape, 1, dtype=dtype)], dim=-1)
+    view = CAPTURE_DISTANCE * uniform_hemisphere(gen, shape, dtype)
+    to_view = _normalize(view - p)
+    mirrored = to_view * torch.tensor([-1.0, -1.0, 1.0], dtype=dtype)
+    dist = REFLECT_SIGMA * torch.randn(*shape, 1, generator=gen, dtype=dtype).abs() + REFLECT_MIN_DIST
+    light = p + mirrored * dist
+    return light, view
+
+
+def identity(batch: int, k: int = 1, dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
+    """Co-located light and view at the capture position (re-creates the input photo)."""
+    cam = torch.tensor([0.0, 0.0, CAPTURE_DISTANCE], dtype=dtype).expand(batch, k, 3).clone()
+    return cam, cam.clone()
+
+
+def hemisphere(gen: torch.Generator, batch: int, k: int, dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
+    """Independent uniform light and view positions on the hemisphere of radius 4 (paper §4)."""
+    light = HEMISPHERE_RADIUS * uniform_hemisphere(gen, (batch, k), dtype)
+    view = HEMISPHERE_RADIUS * uniform_hemisphere(gen, (batch, k), dtype)
+    return light, view
+
+
+PROTOCOLS = ("reflect", "identity", "hemisphere")
+
+
+def sample(name: str, gen: torch.Generator, batch: int, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    if name == "reflect":
+        return reflect(gen, batch, k)
+    if name == "identity":
+        return identity(batch, 1)
+    if name == "hemisphere":
+        return hemisphere(gen, batch, k)
+    raise ValueError(f"unknown protocol {name!r}")

@@ -1,0 +1,253 @@
+"""Train the neural appearance model on procedural SVBRDFs (paper §3.6, DESIGN.md §6).
+
+    python -m train_py.train --config small --steps 2000 --out runs/small [--minutes 60] [--resume]
+                             [--threads 1] [--device cpu|cuda]
+
+Each step: ``--batch`` procedural materials at ``--size``² → LDR capture render (8-bit sRGB
+round trip) → network input (log RGB + capture half-z) → params; ``--outputs`` exemplars per
+material with Reflect sampling; 60% of the pixels of each exemplar drawn by inverse param-norm
+(paper masking method 1) go through ND_enc + M_render; loss = L1 of log radiance.
+Perceptual (LPIPS) and discriminator losses need pretrained / extra networks and are left out:
+only the data loss is used, as the paper's own ablations make it the primary term.
+Checkpoints (``ckpt.pt``) are written every ``--ckpt-minutes`` and at the end; ``--resume``
+continues from one. Under ``torchrun`` (``WORLD_SIZE`` set) it runs DDP.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import time
+from pathlib import Path
+
+import torch
+import torch.distributed as dist
+from torch import nn
+
+from . import gen, ggx, protocols
+from .evaluate import evaluate_protocols
+from .model import CONFIGS, PARAM_CHANNELS, NamModel, query_dirs
+
+#: Guards the inverse param-norm sampling weights against an all-zero parameter vector.
+NORM_EPS = 1e-6
+
+
+def select_pixels(params: torch.Tensor, k: int, frac: float, generator: torch.Generator | None) -> torch.Tensor:
+    """Pixel indices ``[B, K, n]`` drawn without replacement ∝ 1/‖params‖ (paper masking method 1)."""
+    b, _, h, w = params.shape
+    with torch.no_grad():
+        weights = 1.0 / (torch.linalg.vector_norm(params.detach().float(), dim=1).reshape(b, h * w) + NORM_EPS)
+        n = max(1, round(frac * h * w))
+        rows = weights.repeat_interleave(k, dim=0)
+        idx = torch.multinomial(rows.cpu(), n, replacement=False, generator=generator).to(params.device)
+    return idx.reshape(b, k, n)
+
+
+def gather_rows(x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """``x`` [B, P, C], ``idx`` [B, K, n] → [B, K, n, C]."""
+    b, k, n = idx.shape
+    flat = idx.reshape(b, k * n)
+    out = torch.gather(x, 1, flat[..., None].expand(b, k * n, x.shape[-1]))
+    return out.reshape(b, k, n, x.shape[-1])
+
+
+def exemplar_targets(maps, light, view, idx):
+    """GGX log radiance and query directions at the selected pixels: ``[B, K, n, 3]``, ``[B, K, n, 9]``."""
+    b = idx.shape[0]
+    h, w = maps["roughness"].shape[1:3]
+    pos = ggx.pixel_positions(h, w, light.dtype, light.device).reshape(1, h * w, 3).expand(b, h * w, 3)
+    p = gather_rows(pos, idx)
+    wi = ggx.normalize(light[:, :, None, :] - p)
+    wo = ggx.normalize(view[:, :, None, :] - p)
+    flat = {key: v.reshape(b, h * w, -1) for key, v in maps.items()}
+    sel = {key: gather_rows(v, idx) for key, v in flat.items()}
+    radiance = ggx.ggx_radiance(sel["diffuse"], sel["specular"], sel["roughness"][..., 0], sel["normal"], wi, wo)
+    return ggx.to_log(radiance), query_dirs(wi, wo)
+
+
+class TrainStep(nn.Module):
+    """Forward of one training step (so DDP sees a single ``forward``): input → sampled log radiance."""
+
+    def __init__(self, model: NamModel):
+        super().__init__()
+        self.model = model
+
+    def forward(self, net_input, k, frac, sel_gen, maps, light, view):
+        params = self.model.estimate(net_input)
+        idx = select_pixels(params, k, frac, sel_gen)
+        target, dirs = exemplar_targets(maps, light, view, idx)
+        b = params.shape[0]
+        flat = params.permute(0, 2, 3, 1).reshape(b, -1, PARAM_CHANNELS)
+        p = gather_rows(flat, idx)
+        pred = self.model.render_log(p.reshape(-1, PARAM_CHANNELS), dirs.reshape(-1, 9))
+        return pred.reshape(target.shape), target
+
+
+def make_batch(seeds: list[int], size: int, device) -> tuple[dict, torch.Tensor]:
+    maps = gen.batch(seeds, size, device)
+    photo = ggx.ldr_capture(ggx.render_capture(maps))
+    return maps, ggx.network_input(photo, "ldr")
+
+
+def lr_at(progress: float, lr: float, lr_final: float, warmup: float = 0.02) -> float:
+    """Short linear warm-up, then cosine decay from ``lr`` to ``lr_final`` over progress ∈ [0, 1]."""
+    if progress < warmup:
+        return lr * max(progress / warmup, 0.05)
+    t = min(1.0, (progress - warmup) / (1 - warmup))
+    return lr_final + 0.5 * (lr - lr_final) * (1 + math.cos(math.pi * t))
+
+
+def save_checkpoint(path: Path, model: NamModel, opt, state: dict) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save(
+        {"config": model.config.as_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(), **state}, tmp
+    )
+    os.replace(tmp, path)
+
+
+def parse_args(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--config", default="small", choices=sorted(CONFIGS))
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--minutes", type=float, default=None, help="wall-clock budget; the schedule follows it")
+    ap.add_argument("--out", default="runs/small")
+    ap.add_argument("--resume", action="store_true")
+    ap.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--batch", type=int, default=2, help="materials (input photos) per step")
+    ap.add_argument("--outputs", type=int, default=8, help="rendered exemplars per material")
+    ap.add_argument("--size", type=int, default=64, help="training resolution (the U-Net is fully convolutional)")
+    ap.add_argument(
+        "--sizes",
+        default="",
+        help="comma-separated resolutions drawn per step instead of --size; exemplars per material are "
+        "scaled by (size/--size)^-2 so every step costs about the same",
+    )
+    ap.add_argument("--pixel-frac", type=float, default=0.6, help="fraction of pixels in the data loss")
+    ap.add_argument("--lr", type=float, default=2e-3)
+    ap.add_argument("--lr-final", type=float, default=1e-4)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--ckpt-minutes", type=float, default=3.0)
+    ap.add_argument("--val-every", type=int, default=200, help="steps between validations (0: never)")
+    ap.add_argument("--val-materials", type=int, default=6)
+    ap.add_argument("--log-every", type=int, default=10)
+    ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast for the matmuls")
+    return ap.parse_args(argv)
+
+
+def train(args) -> dict:
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    distributed = "WORLD_SIZE" in os.environ
+    device = torch.device(args.device)
+    if distributed:
+        dist.init_process_group("nccl" if args.device == "cuda" else "gloo")
+        if args.device == "cuda":
+            device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+            torch.cuda.set_device(device)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    ckpt_path = out / "ckpt.pt"
+
+    torch.manual_seed(args.seed)
+    model = NamModel(CONFIGS[args.config]).to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    state = {"step": 0, "elapsed": 0.0, "loss": None, "history": []}
+    if args.resume and ckpt_path.exists():
+        ckpt = torch.load(ckpt_path, map_location=device, weights_only=False)
+        model.load_state_dict(ckpt["model"])
+        opt.load_state_dict(ckpt["optimizer"])
+        state = {k: ckpt[k] for k in state if k in ckpt}
+        if rank == 0:
+            print(f"resumed {ckpt_path} at step {state['step']} ({state['elapsed'] / 60:.1f} min)", flush=True)
+    step_module: nn.Module = TrainStep(model)
+    if distributed:
+        step_module = nn.parallel.DistributedDataParallel(step_module)
+
+    data_gen = torch.Generator().manual_seed(args.seed * 1000003 + rank * 7919 + state["step"])
+    log = open(out / "train.log", "a") if rank == 0 else None  # noqa: SIM115 (kept open for the run)
+
+    def emit(line: str) -> None:
+        if rank == 0:
+            print(line, flush=True)
+            log.write(line + "\n")
+            log.flush()
+
+    emit(f"# {json.dumps(vars(args))} world={world}")
+    sizes = [int(v) for v in args.sizes.split(",") if v.strip()]
+    start = time.time() - state["elapsed"]
+    last_ckpt = time.time()
+    ema = state["loss"]
+    step = state["step"]
+    while True:
+        elapsed = time.time() - start
+        progress = step / args.steps
+        if args.minutes:
+            progress = max(progress, elapsed / (60 * args.minutes))
+        if progress >= 1.0:
+            break
+        lr = lr_at(progress, args.lr, args.lr_final)
+        for group in opt.param_groups:
+            group["lr"] = lr
+        t0 = time.time()
+        seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (args.batch,), generator=data_gen).tolist()
+        size, outputs = args.size, args.outputs
+        if sizes:
+            size = sizes[int(torch.randint(0, len(sizes), (), generator=data_gen))]
+            outputs = max(1, round(args.outputs * (args.size / size) ** 2))
+        maps, net_input = make_batch(seeds, size, device)
+        light, view = protocols.reflect(data_gen, args.batch, outputs)
+        model.train()
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.bf16):
+            pred, target = step_module(
+                net_input, outputs, args.pixel_frac, data_gen, maps, light.to(device), view.to(device)
+            )
+        loss = (pred.float() - target).abs().mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        step += 1
+        val = float(loss.detach())
+        ema = val if ema is None else 0.98 * ema + 0.02 * val
+        if step % args.log_every == 0 or step == 1:
+            emit(
+                f"step {step:6d}  loss {val:.4f}  ema {ema:.4f}  lr {lr:.2e}  "
+                f"{time.time() - t0:.2f} s/step  {elapsed / 60:.1f} min"
+            )
+        state.update(step=step, elapsed=time.time() - start, loss=ema)
+        if args.val_every and step % args.val_every == 0 and rank == 0:
+            res = validate(model, args)
+            state["history"].append({"step": step, **res})
+            emit(f"val   {step:6d}  " + "  ".join(f"{k} {v:.4f}" for k, v in res.items()))
+        if rank == 0 and time.time() - last_ckpt > 60 * args.ckpt_minutes:
+            save_checkpoint(ckpt_path, model, opt, state)
+            last_ckpt = time.time()
+    if rank == 0:
+        state["minutes"] = state["elapsed"] / 60
+        save_checkpoint(ckpt_path, model, opt, state)
+        emit(f"done: {step} steps, {state['elapsed'] / 60:.1f} min, ema loss {ema:.4f}; wrote {ckpt_path}")
+        log.close()
+    if distributed:
+        dist.destroy_process_group()
+    return state
+
+
+def validate(model: NamModel, args) -> dict[str, float]:
+    """Mean log-L1 on held-out procedural materials under the three protocols (small, fast)."""
+    model.eval()
+    seeds = [gen.HELD_OUT_SEED_BASE + 1000 + i for i in range(args.val_materials)]
+    res = evaluate_protocols(model, seeds, args.size, hemisphere_k=8, reflect_k=4, device=args.device)
+    model.train()
+    return {f"{p}_logl1": v["model"]["log_l1"] for p, v in res.items()}
+
+
+def main(argv=None) -> None:
+    train(parse_args(argv))
+
+
+if __name__ == "__main__":
+    main()
