@@ -149,12 +149,12 @@ pub fn eval_specular<T: Float>(p: &GgxPoint<T>, wi: Vec3<T>, wo: Vec3<T>) -> [T;
 #[inline]
 pub fn brdf_value<T: Float>(p: &GgxPoint<T>, wi: Vec3<T>, wo: Vec3<T>) -> [T; 3] {
     let nol = p.normal.dot(wi);
-    if !(nol > T::ZERO) {
-        return [T::ZERO; 3];
+    if nol > T::ZERO {
+        let s = T::ONE / (T::PI * nol);
+        eval(p, wi, wo).map(|v| v * s)
+    } else {
+        [T::ZERO; 3]
     }
-    let r = eval(p, wi, wo);
-    let s = T::ONE / (T::PI * nol);
-    r.map(|v| v * s)
 }
 
 #[cfg(test)]

@@ -237,7 +237,8 @@ pub enum PngDepth {
 /// caller), clamped to [0, 1] and rounded to the nearest code; NaN becomes 0.
 pub fn encode_png(img: &RgbImage<f32>, depth: PngDepth) -> Result<Vec<u8>> {
     let (w, h) = dims_u32(img)?;
-    let q = |v: f32, max: f32| (v.max(0.0).min(1.0) * max).round();
+    // `as` saturates and maps NaN to 0.
+    let q = |v: f32, max: f32| (v.clamp(0.0, 1.0) * max).round();
     let dynamic = match depth {
         PngDepth::Eight => {
             let raw: Vec<u8> = img.data().iter().map(|&v| q(v, 255.0) as u8).collect();
