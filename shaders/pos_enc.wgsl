@@ -6,7 +6,7 @@
 // t folded to [-1/2, 1/2), then sin/cos(2 pi t) come from quadrant reduction and Taylor
 // polynomials on [-pi/4, pi/4] (error < 1e-7, independent of the platform's sin/cos).
 //
-// Input `dirs`: [n, 9] rows. Output `dst`: row r starts at out_base + r * out_stride.
+// Input `dirs`: [n, 9] rows, f32. Output `dst`: row r starts at out_base + r * out_stride.
 // One invocation per (row, j). Dispatch: 64-wide workgroups over n * 9, split over x and y.
 alias st = f32;
 
@@ -20,7 +20,8 @@ struct PeParams {
 }
 
 @group(0) @binding(0) var<uniform> p: PeParams;
-@group(0) @binding(1) var<storage, read> dirs: array<st>;
+// Directions stay f32 in both variants: an f16 c would move 2^15·π·c by up to ~25 rad.
+@group(0) @binding(1) var<storage, read> dirs: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dst: array<st>;
 
 const HALF_PI: f32 = 1.5707963267948966;
@@ -53,7 +54,7 @@ fn pos_enc(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     }
     let row = idx / 9u;
     let j = idx % 9u;
-    let x = f32(dirs[idx]);
+    let x = dirs[idx];
     let base = p.out_base + row * p.out_stride;
     dst[base + j] = st(x);
     var scale = 0.5;

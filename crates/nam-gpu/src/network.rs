@@ -447,7 +447,7 @@ impl GpuNetwork {
             .map(|l| l.out.max(l.inp))
             .max()
             .unwrap_or(1);
-        let dirs = ctx.storage("dirs", 9 * n, p)?;
+        let dirs = ctx.storage("dirs", 9 * n, Precision::F32)?;
         let enc = ctx.storage("encoding", u64::from(r.encoding) * n, p)?;
         let cat = ctx.storage("params|nd", u64::from(cat_w) * n, p)?;
         let ping = [

@@ -1,0 +1,120 @@
+//! The whole network on the GPU against the torch golden fixtures (docs/FORMAT.md,
+//! `tests/fixtures/net_tiny*.safetensors`, written by `python -m train_py.golden`), in f32 and
+//! f16. Tests print a reason and pass only when no GPU adapter exists.
+
+use std::path::PathBuf;
+use std::sync::{Mutex, OnceLock};
+
+use nam_gpu::{DeviceHandles, GpuNetwork, Precision};
+use nam_weights::{TensorFile, Weights};
+
+/// f32 GPU vs torch f32: different summation orders through ~40 layers of the U-Net
+/// (InstanceNorm divides by small standard deviations), so a few 1e-5 relative to the map's
+/// largest magnitude.
+const ESTIMATE_F32_TOL: f32 = 2e-4;
+/// f16 storage rounds every activation to 11 bits through ~40 layers, and InstanceNorm over
+/// the 3x5-pixel bottleneck of the 20x36 fixture amplifies that rounding (max error).
+const ESTIMATE_F16_TOL: f32 = 0.15;
+/// Mean absolute error (relative to the largest |param|) for f16: rounding noise averages out.
+const ESTIMATE_F16_MEAN_TOL: f32 = 1.5e-2;
+/// Mean-error bound for f32 (relative to the largest |param|).
+const ESTIMATE_F32_MEAN_TOL: f32 = 2e-5;
+/// The render MLP folds l1·l0 in f64 and sums in a different order than torch.
+const RENDER_F32_TOL: f32 = 5e-5;
+/// f16 storage of weights and activations, 9 layers.
+const RENDER_F16_TOL: f32 = 1e-2;
+
+fn fixture(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures").join(name)
+}
+
+fn gpu() -> Option<&'static Mutex<DeviceHandles>> {
+    static GPU: OnceLock<Option<Mutex<DeviceHandles>>> = OnceLock::new();
+    let g = GPU.get_or_init(|| nam_gpu::request_device(true).map(Mutex::new));
+    if g.is_none() {
+        eprintln!("SKIP: no GPU adapter available");
+    }
+    g.as_ref()
+}
+
+fn load() -> (Weights, TensorFile) {
+    let w = Weights::from_file(fixture("net_tiny.safetensors")).unwrap_or_else(|e| panic!("{e}"));
+    let g = TensorFile::from_file(fixture("net_tiny_golden.safetensors")).unwrap_or_else(|e| panic!("{e}"));
+    (w, g)
+}
+
+fn tensor<'a>(g: &'a TensorFile, name: &str) -> (&'a [f32], Vec<usize>) {
+    let t = g.tensors().get(name).unwrap_or_else(|| panic!("golden lacks {name}"));
+    (t.data(), t.shape().to_vec())
+}
+
+/// Largest |got - want| relative to the largest |want| (at least 1).
+fn rel_err(got: &[f32], want: &[f32]) -> f32 {
+    assert_eq!(got.len(), want.len());
+    let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+    got.iter().zip(want).map(|(g, w)| (g - w).abs()).fold(0.0, f32::max) / scale
+}
+
+fn network(p: Precision, weights: &Weights) -> Option<GpuNetwork> {
+    let g = gpu()?.lock().unwrap_or_else(|e| e.into_inner());
+    if p == Precision::F16 && !g.device.features().contains(wgpu::Features::SHADER_F16) {
+        eprintln!("SKIP f16: adapter {:?} lacks SHADER_F16", g.info.name);
+        return None;
+    }
+    Some(GpuNetwork::new(&g.device, &g.queue, weights, p).unwrap_or_else(|e| panic!("{e}")))
+}
+
+fn estimate_case(p: Precision, tol: f32, mean_tol: f32) {
+    let (weights, golden) = load();
+    let Some(mut net) = network(p, &weights) else { return };
+    let (input, shape) = tensor(&golden, "input");
+    let (h, w) = (shape[1], shape[2]);
+    let got_hwc = net.estimate(input, h, w).unwrap_or_else(|e| panic!("{e}"));
+    let (want_chw, _) = tensor(&golden, "params");
+    let mut got_chw = vec![0.0; got_hwc.len()];
+    for (i, v) in got_hwc.iter().enumerate() {
+        let (pix, c) = (i / 64, i % 64);
+        got_chw[c * h * w + pix] = *v;
+    }
+    let err = rel_err(&got_chw, want_chw);
+    let scale = want_chw.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let mean = got_chw.iter().zip(want_chw).map(|(g, w)| (g - w).abs()).sum::<f32>() / got_chw.len() as f32;
+    eprintln!("estimate {p:?}: max |params| {scale:.3}, mean abs error {mean:.3e}");
+    assert!(mean <= mean_tol * scale.max(1.0), "estimate {p:?}: mean error {mean} > {mean_tol} x {scale}");
+    eprintln!("estimate {p:?}: relative error {err:.3e} (tol {tol:.1e})");
+    assert!(err <= tol, "estimate {p:?}: relative error {err} > {tol}");
+}
+
+fn render_case(p: Precision, tol: f32) {
+    let (weights, golden) = load();
+    let Some(mut net) = network(p, &weights) else { return };
+    let (params, _) = tensor(&golden, "r_params");
+    let (dirs, _) = tensor(&golden, "r_dirs");
+    let (log, nd) = net.render_log_with_nd(params, dirs).unwrap_or_else(|e| panic!("{e}"));
+    let radiance = net.render(params, dirs).unwrap_or_else(|e| panic!("{e}"));
+    for (name, got) in [("r_nd", &nd), ("r_log", &log), ("r_radiance", &radiance)] {
+        let err = rel_err(got, tensor(&golden, name).0);
+        eprintln!("render {p:?} {name}: relative error {err:.3e} (tol {tol:.1e})");
+        assert!(err <= tol, "render {p:?} {name}: relative error {err} > {tol}");
+    }
+}
+
+#[test]
+fn estimate_matches_torch_golden_on_net_tiny_f32() {
+    estimate_case(Precision::F32, ESTIMATE_F32_TOL, ESTIMATE_F32_MEAN_TOL);
+}
+
+#[test]
+fn estimate_matches_torch_golden_on_net_tiny_f16() {
+    estimate_case(Precision::F16, ESTIMATE_F16_TOL, ESTIMATE_F16_MEAN_TOL);
+}
+
+#[test]
+fn render_matches_torch_golden_on_net_tiny_f32() {
+    render_case(Precision::F32, RENDER_F32_TOL);
+}
+
+#[test]
+fn render_matches_torch_golden_on_net_tiny_f16() {
+    render_case(Precision::F16, RENDER_F16_TOL);
+}
