@@ -1,0 +1,76 @@
+//! The nam networks on the CPU (no GPU dependency).
+//!
+//! * [`UNet`] — `M_est`: network input (CHW, 4 × H × W) → [`ParamMap`] (HWC, 64 per pixel).
+//! * [`RenderNet`] — `M_render`: per-pixel positional encoding → ND_enc → render
+//!   MLP, fused per tile; batch queries ([`RenderNet::render_batch`]), whole
+//!   images ([`RenderNet::relight`]) and the separate pieces
+//!   ([`RenderNet::encode`], [`RenderNet::nd_enc`], [`RenderNet::render_from_features`]).
+//! * [`Model`] — both, built from one [`nam_weights::Weights`].
+//! * [`reference`] — readable loops with f32 or f64 accumulation, the yardstick
+//!   for the fast path.
+//! * [`geometry`] — pixel positions and per-pixel directions (DESIGN §3).
+//!
+//! Conventions: directions are unit vectors in the surface frame (z up);
+//! radiance is `R = π·f_r·cos θi` for a unit light without falloff; networks
+//! work in `ln(R + 1)`. Threads: rayon's current pool (use `ThreadPool::install`).
+
+#![deny(unsafe_code)]
+
+pub mod encoding;
+mod error;
+pub mod geometry;
+pub mod reference;
+mod render;
+mod sgemm;
+mod unet;
+
+pub use error::{ModelError, Result};
+pub use render::{DEFAULT_TILE, ParamMap, RenderNet, Rgb, radiance_from_log};
+pub use unet::{MAX_SIDE, UNet};
+
+use nam_weights::Weights;
+
+/// The complete CPU model: estimator and renderer.
+#[derive(Debug, Clone)]
+pub struct Model {
+    /// `M_est`.
+    pub unet: UNet,
+    /// `M_render`.
+    pub render: RenderNet,
+}
+
+impl Model {
+    /// Packs validated weights for the fast path.
+    pub fn new(weights: &Weights) -> Result<Self> {
+        Ok(Self {
+            unet: UNet::new(weights)?,
+            render: RenderNet::new(weights)?,
+        })
+    }
+}
+
+/// Multiply-add rate of this crate's GEMM on an `n×n×n` f32 product using the
+/// current rayon pool, in GFLOP/s (2 flops per multiply-add); the best of `reps`.
+/// Benchmarks report network throughput against it.
+pub fn sgemm_gflops(n: usize, reps: usize) -> f64 {
+    let a: Vec<f32> = (0..n * n).map(|i| (i % 7) as f32 * 0.1).collect();
+    let b: Vec<f32> = (0..n * n).map(|i| (i % 5) as f32 * 0.1).collect();
+    let mut c = vec![0.0f32; n * n];
+    let mut best = f64::INFINITY;
+    for _ in 0..reps.max(1) {
+        let t = std::time::Instant::now();
+        sgemm::sgemm(
+            n,
+            n,
+            n,
+            sgemm::Mat { data: &a, ld: n },
+            sgemm::Mat { data: &b, ld: n },
+            &mut c,
+            n,
+            false,
+            rayon::current_num_threads(),
+        );
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    2.0 * (n as f64).powi(3) / best / 1e9
+}

@@ -1,0 +1,699 @@
+//! `M_est`, fast path: HWC activations, convolutions as im2col + blocked GEMM
+//! over bands of output rows (rayon), convs that read the same input fused
+//! into one GEMM (gate, inc1a, inc2 and the 1×1 `down` as a centre tap),
+//! transposed convs split into output-parity sub-convolutions.
+
+use nam_weights::{Scope, Weights};
+use rayon::prelude::*;
+
+use crate::error::{ModelError, Result, check_len};
+use crate::render::ParamMap;
+use crate::sgemm::{Mat, sgemm};
+
+/// Largest accepted image side, in pixels (guards size arithmetic).
+pub const MAX_SIDE: usize = 1 << 15;
+
+/// Output pixels per GEMM band: enough rows for the GEMM kernel, small enough
+/// that the im2col band stays in cache.
+const BAND_PIXELS: usize = 512;
+
+pub(crate) fn pad_multiple(n: usize) -> usize {
+    n.div_ceil(8) * 8
+}
+
+pub(crate) fn check_image(height: usize, width: usize) -> Result<()> {
+    let bad = |reason| {
+        Err(ModelError::ImageSize {
+            height,
+            width,
+            reason,
+        })
+    };
+    if height == 0 || width == 0 {
+        return bad("zero-sized");
+    }
+    if height > MAX_SIDE || width > MAX_SIDE {
+        return bad("side larger than 32768");
+    }
+    Ok(())
+}
+
+/// An HWC activation: `d[(y·w + x)·c + ch]`.
+#[derive(Debug, Clone)]
+struct Hwc {
+    h: usize,
+    w: usize,
+    c: usize,
+    d: Vec<f32>,
+}
+
+/// A k×k convolution (or several fused along the output channels) packed as
+/// the GEMM right-hand side `[k·k·cin, cout]`, row index `(ky·k + kx)·cin + ci`.
+#[derive(Debug, Clone)]
+struct PackedConv {
+    k: usize,
+    stride: usize,
+    pad: usize,
+    cin: usize,
+    cout: usize,
+    wt: Vec<f32>,
+}
+
+impl PackedConv {
+    /// Fuses convs over the same input; each part is `(weight [co, cin, kp, kp], co, kp)`
+    /// with `kp == k` or `kp == 1` (a 1×1 conv placed at the centre tap; valid
+    /// because pad = k/2 makes the centre tap read exactly the 1×1 conv's pixel).
+    fn fused(parts: &[(&[f32], usize, usize)], cin: usize, k: usize, stride: usize) -> Self {
+        let cout: usize = parts.iter().map(|p| p.1).sum();
+        let mut wt = vec![0.0f32; k * k * cin * cout];
+        let mut col0 = 0;
+        for &(w, co, kp) in parts {
+            for o in 0..co {
+                for i in 0..cin {
+                    for ky in 0..kp {
+                        for kx in 0..kp {
+                            let (ty, tx) = if kp == k { (ky, kx) } else { (k / 2, k / 2) };
+                            wt[((ty * k + tx) * cin + i) * cout + col0 + o] =
+                                w[((o * cin + i) * kp + ky) * kp + kx];
+                        }
+                    }
+                }
+            }
+            col0 += co;
+        }
+        Self {
+            k,
+            stride,
+            pad: k / 2,
+            cin,
+            cout,
+            wt,
+        }
+    }
+
+    /// Replicate-padded convolution (no bias).
+    fn run(&self, x: &Hwc) -> Hwc {
+        debug_assert_eq!(x.c, self.cin);
+        let ho = (x.h + 2 * self.pad - self.k) / self.stride + 1;
+        let wo = (x.w + 2 * self.pad - self.k) / self.stride + 1;
+        let kk = self.k * self.k * self.cin;
+        let rows = (BAND_PIXELS / wo).max(1);
+        let mut out = vec![0.0f32; ho * wo * self.cout];
+        out.par_chunks_mut(rows * wo * self.cout)
+            .enumerate()
+            .for_each_init(Vec::new, |col: &mut Vec<f32>, (band, dst)| {
+                let m = dst.len() / self.cout;
+                col.resize(m * kk, 0.0);
+                let p0 = band * rows * wo;
+                for p in 0..m {
+                    let (oy, ox) = ((p0 + p) / wo, (p0 + p) % wo);
+                    let row = &mut col[p * kk..(p + 1) * kk];
+                    for ky in 0..self.k {
+                        let iy = (oy * self.stride + ky)
+                            .saturating_sub(self.pad)
+                            .min(x.h - 1);
+                        for kx in 0..self.k {
+                            let ix = (ox * self.stride + kx)
+                                .saturating_sub(self.pad)
+                                .min(x.w - 1);
+                            let src = (iy * x.w + ix) * x.c;
+                            let t = (ky * self.k + kx) * self.cin;
+                            row[t..t + self.cin].copy_from_slice(&x.d[src..src + x.c]);
+                        }
+                    }
+                }
+                sgemm(
+                    m,
+                    self.cout,
+                    kk,
+                    Mat { data: col, ld: kk },
+                    Mat {
+                        data: &self.wt,
+                        ld: self.cout,
+                    },
+                    dst,
+                    self.cout,
+                    false,
+                    1,
+                );
+            });
+        Hwc {
+            h: ho,
+            w: wo,
+            c: self.cout,
+            d: out,
+        }
+    }
+}
+
+/// Per-channel InstanceNorm of an HWC activation (stats in f64, biased variance).
+fn instance_norm(x: &Hwc, eps: f32) -> Hwc {
+    let n = x.h * x.w;
+    let mut sum = vec![0.0f64; x.c];
+    for px in x.d.chunks_exact(x.c) {
+        for (s, &v) in sum.iter_mut().zip(px) {
+            *s += f64::from(v);
+        }
+    }
+    let mean: Vec<f64> = sum.iter().map(|s| s / n as f64).collect();
+    let mut var = vec![0.0f64; x.c];
+    for px in x.d.chunks_exact(x.c) {
+        for ((q, &v), m) in var.iter_mut().zip(px).zip(&mean) {
+            let d = f64::from(v) - m;
+            *q += d * d;
+        }
+    }
+    let inv: Vec<f32> = var
+        .iter()
+        .map(|q| (1.0 / (q / n as f64 + f64::from(eps)).sqrt()) as f32)
+        .collect();
+    let meanf: Vec<f32> = mean.iter().map(|&m| m as f32).collect();
+    let mut d = x.d.clone();
+    d.par_chunks_mut(x.c * 256).for_each(|chunk| {
+        for px in chunk.chunks_exact_mut(x.c) {
+            for ((v, m), s) in px.iter_mut().zip(&meanf).zip(&inv) {
+                *v = (*v - m) * s;
+            }
+        }
+    });
+    Hwc { d, ..*x }
+}
+
+fn concat(a: &Hwc, b: &Hwc) -> Hwc {
+    let c = a.c + b.c;
+    let mut d = vec![0.0f32; a.h * a.w * c];
+    d.par_chunks_mut(c)
+        .zip(a.d.par_chunks(a.c).zip(b.d.par_chunks(b.c)))
+        .for_each(|(o, (x, y))| {
+            o[..a.c].copy_from_slice(x);
+            o[a.c..].copy_from_slice(y);
+        });
+    Hwc {
+        h: a.h,
+        w: a.w,
+        c,
+        d,
+    }
+}
+
+fn sigmoid(v: f32) -> f32 {
+    1.0 / (1.0 + (-v).exp())
+}
+
+/// One HA-Conv, packed. Column layout of `main`: `[gate | inc2 | down?]`
+/// (stride s) with `inc1a` included first when s = 1.
+#[derive(Debug, Clone)]
+struct Ha {
+    cout: usize,
+    stride: usize,
+    /// stride s GEMM on x: [inc1a (s = 1 only) | gate | inc2 | down (optional)].
+    main: PackedConv,
+    /// inc1a at stride 1 when s ≠ 1.
+    inc1a: Option<PackedConv>,
+    inc1b: PackedConv,
+    feat: PackedConv,
+    has_down: bool,
+}
+
+impl Ha {
+    fn new(
+        p: &Scope<'_>,
+        cin: usize,
+        cout: usize,
+        stride: usize,
+        down: Option<&[f32]>,
+    ) -> Result<Self> {
+        let g = p.get("gate.weight", &[cout, cin, 3, 3])?;
+        let f = p.get("feat.weight", &[cout, cin, 3, 3])?;
+        let i1a = p.get("inc1a.weight", &[cout, cin, 3, 3])?;
+        let i1b = p.get("inc1b.weight", &[cout / 2, cout, 3, 3])?;
+        let i2 = p.get("inc2.weight", &[cout / 2, cin, 3, 3])?;
+        let mut parts: Vec<(&[f32], usize, usize)> = Vec::new();
+        if stride == 1 {
+            parts.push((i1a, cout, 3));
+        }
+        parts.push((g, cout, 3));
+        parts.push((i2, cout / 2, 3));
+        if let Some(d) = down {
+            parts.push((d, cout, 1));
+        }
+        Ok(Self {
+            cout,
+            stride,
+            main: PackedConv::fused(&parts, cin, 3, stride),
+            inc1a: (stride != 1).then(|| PackedConv::fused(&[(i1a, cout, 3)], cin, 3, 1)),
+            inc1b: PackedConv::fused(&[(i1b, cout / 2, 3)], cout, 3, stride),
+            feat: PackedConv::fused(&[(f, cout, 3)], cin, 3, stride),
+            has_down: down.is_some(),
+        })
+    }
+
+    /// Returns (HA output, down-conv output without bias if fused).
+    fn run(&self, x: &Hwc, eps: f32, slope: f32) -> (Hwc, Option<Hwc>) {
+        let co = self.cout;
+        let main = self.main.run(x);
+        let off = if self.stride == 1 { co } else { 0 };
+        let c1b = match &self.inc1a {
+            Some(c) => self.inc1b.run(&c.run(x)),
+            None => {
+                // inc1a occupies columns 0..co of `main`.
+                let a = Hwc {
+                    h: main.h,
+                    w: main.w,
+                    c: co,
+                    d: main
+                        .d
+                        .chunks_exact(main.c)
+                        .flat_map(|px| px[..co].iter().copied())
+                        .collect(),
+                };
+                self.inc1b.run(&a)
+            }
+        };
+        let feat = self.feat.run(&instance_norm(x, eps));
+        let (h, w) = (main.h, main.w);
+        let mut out = vec![0.0f32; h * w * co];
+        let half = co / 2;
+        out.par_chunks_mut(co)
+            .zip(main.d.par_chunks(main.c))
+            .zip(feat.d.par_chunks(co).zip(c1b.d.par_chunks(half)))
+            .for_each(|((o, m), (f, c1))| {
+                for k in 0..co {
+                    let a = sigmoid(m[off + k]);
+                    let b = if f[k] >= 0.0 { f[k] } else { f[k] * slope };
+                    let c = if k < half {
+                        c1[k]
+                    } else {
+                        m[off + co + k - half]
+                    };
+                    o[k] = a * b + c;
+                }
+            });
+        let down = self.has_down.then(|| {
+            let s = off + co + half;
+            Hwc {
+                h,
+                w,
+                c: co,
+                d: main
+                    .d
+                    .chunks_exact(main.c)
+                    .flat_map(|px| px[s..s + co].iter().copied())
+                    .collect(),
+            }
+        });
+        (
+            Hwc {
+                h,
+                w,
+                c: co,
+                d: out,
+            },
+            down,
+        )
+    }
+}
+
+#[derive(Debug, Clone)]
+struct Basic {
+    ha1: Ha,
+    ha2: Ha,
+    bn1: (Vec<f32>, Vec<f32>),
+    bn2: (Vec<f32>, Vec<f32>),
+    down_bias: Option<Vec<f32>>,
+}
+
+impl Basic {
+    fn new(p: &Scope<'_>, cin: usize, cout: usize, stride: usize) -> Result<Self> {
+        let down = if cin != cout || stride != 1 {
+            Some((
+                p.get("down.weight", &[cout, cin, 1, 1])?,
+                p.get("down.bias", &[cout])?.to_vec(),
+            ))
+        } else {
+            None
+        };
+        let bn = |n: &str| -> Result<(Vec<f32>, Vec<f32>)> {
+            Ok((
+                p.get(&format!("{n}.scale"), &[cout])?.to_vec(),
+                p.get(&format!("{n}.shift"), &[cout])?.to_vec(),
+            ))
+        };
+        Ok(Self {
+            ha1: Ha::new(
+                &p.scope("ha1"),
+                cin,
+                cout,
+                stride,
+                down.as_ref().map(|d| d.0),
+            )?,
+            ha2: Ha::new(&p.scope("ha2"), cout, cout, 1, None)?,
+            bn1: bn("bn1")?,
+            bn2: bn("bn2")?,
+            down_bias: down.map(|d| d.1),
+        })
+    }
+
+    fn run(&self, x: &Hwc, eps: f32, slope: f32) -> Hwc {
+        let (mut y, down) = self.ha1.run(x, eps, slope);
+        let co = y.c;
+        let (s1, t1) = &self.bn1;
+        y.d.par_chunks_mut(co).for_each(|px| {
+            for k in 0..co {
+                px[k] = (px[k] * s1[k] + t1[k]).max(0.0);
+            }
+        });
+        let (mut y, _) = self.ha2.run(&y, eps, slope);
+        let (s2, t2) = &self.bn2;
+        match (&down, &self.down_bias) {
+            (Some(d), Some(b)) => {
+                y.d.par_chunks_mut(co)
+                    .zip(d.d.par_chunks(co))
+                    .for_each(|(px, id)| {
+                        for k in 0..co {
+                            px[k] = (px[k] * s2[k] + t2[k] + id[k] + b[k]).max(0.0);
+                        }
+                    })
+            }
+            _ => {
+                y.d.par_chunks_mut(co)
+                    .zip(x.d.par_chunks(co))
+                    .for_each(|(px, id)| {
+                        for k in 0..co {
+                            px[k] = (px[k] * s2[k] + t2[k] + id[k]).max(0.0);
+                        }
+                    })
+            }
+        }
+        y
+    }
+}
+
+/// ReverseBlock, packed: `up4` as four output-parity 2×2 sub-convolutions
+/// (zero outside the input), `up2` as one GEMM to `[2·2·cout]` then scattered.
+#[derive(Debug, Clone)]
+#[allow(clippy::needless_range_loop)]
+struct Reverse {
+    cin: usize,
+    cout: usize,
+    /// Per parity (py, px): `[2·2·cin, cout]`, row `(ty·2 + tx)·cin + ci`.
+    up4: [Vec<f32>; 4],
+    up4_b: Vec<f32>,
+    conv: PackedConv,
+    conv_b: Vec<f32>,
+    /// `[cin, 4·cout]`, column `(py·2 + px)·cout + co`.
+    up2: Vec<f32>,
+    up2_b: Vec<f32>,
+}
+
+/// For output parity p, the two input offsets and the kernel taps they use
+/// (ConvTranspose2d k4 s2 p1: `o = 2i − 1 + k`).
+const UP4_TAPS: [[(isize, usize); 2]; 2] = [[(-1, 3), (0, 1)], [(0, 2), (1, 0)]];
+
+impl Reverse {
+    fn new(p: &Scope<'_>, cin: usize, cout: usize) -> Result<Self> {
+        let w4 = p.get("up4.weight", &[cin, cout, 4, 4])?;
+        let w2 = p.get("up2.weight", &[cin, cout, 2, 2])?;
+        let up4 = std::array::from_fn(|par| {
+            let (py, px) = (par / 2, par % 2);
+            let mut wt = vec![0.0f32; 4 * cin * cout];
+            for ty in 0..2 {
+                for tx in 0..2 {
+                    let ky = UP4_TAPS[py][ty].1;
+                    let kx = UP4_TAPS[px][tx].1;
+                    for i in 0..cin {
+                        for o in 0..cout {
+                            wt[((ty * 2 + tx) * cin + i) * cout + o] =
+                                w4[((i * cout + o) * 4 + ky) * 4 + kx];
+                        }
+                    }
+                }
+            }
+            wt
+        });
+        let mut up2 = vec![0.0f32; cin * 4 * cout];
+        for i in 0..cin {
+            for o in 0..cout {
+                for t in 0..4 {
+                    up2[i * 4 * cout + t * cout + o] = w2[(i * cout + o) * 4 + t];
+                }
+            }
+        }
+        Ok(Self {
+            cin,
+            cout,
+            up4,
+            up4_b: p.get("up4.bias", &[cout])?.to_vec(),
+            conv: PackedConv::fused(
+                &[(p.get("conv.weight", &[cout, cout, 3, 3])?, cout, 3)],
+                cout,
+                3,
+                1,
+            ),
+            conv_b: p.get("conv.bias", &[cout])?.to_vec(),
+            up2,
+            up2_b: p.get("up2.bias", &[cout])?.to_vec(),
+        })
+    }
+
+    #[allow(clippy::needless_range_loop)]
+    fn run(&self, x: &Hwc) -> Hwc {
+        let (h, w, ci, co) = (x.h, x.w, self.cin, self.cout);
+        let (ho, wo) = (2 * h, 2 * w);
+        // up4 → relu, written to the parity positions.
+        let mut y = vec![0.0f32; ho * wo * co];
+        let kk = 4 * ci;
+        let rows = (BAND_PIXELS / w).max(1);
+        for par in 0..4 {
+            let (py, px) = (par / 2, par % 2);
+            let mut sub = vec![0.0f32; h * w * co];
+            sub.par_chunks_mut(rows * w * co).enumerate().for_each_init(
+                Vec::new,
+                |col: &mut Vec<f32>, (band, dst)| {
+                    let m = dst.len() / co;
+                    col.clear();
+                    col.resize(m * kk, 0.0);
+                    let p0 = band * rows * w;
+                    for p in 0..m {
+                        let (iy, ix) = ((p0 + p) / w, (p0 + p) % w);
+                        for ty in 0..2 {
+                            let sy = iy as isize + UP4_TAPS[py][ty].0;
+                            if sy < 0 || sy >= h as isize {
+                                continue;
+                            }
+                            for tx in 0..2 {
+                                let sx = ix as isize + UP4_TAPS[px][tx].0;
+                                if sx < 0 || sx >= w as isize {
+                                    continue;
+                                }
+                                let src = (sy as usize * w + sx as usize) * ci;
+                                let t = p * kk + (ty * 2 + tx) * ci;
+                                col[t..t + ci].copy_from_slice(&x.d[src..src + ci]);
+                            }
+                        }
+                    }
+                    sgemm(
+                        m,
+                        co,
+                        kk,
+                        Mat { data: col, ld: kk },
+                        Mat {
+                            data: &self.up4[par],
+                            ld: co,
+                        },
+                        dst,
+                        co,
+                        false,
+                        1,
+                    );
+                },
+            );
+            for (idx, v) in sub.chunks_exact(co).enumerate() {
+                let (iy, ix) = (idx / w, idx % w);
+                let o = ((2 * iy + py) * wo + 2 * ix + px) * co;
+                for k in 0..co {
+                    y[o + k] = (v[k] + self.up4_b[k]).max(0.0);
+                }
+            }
+        }
+        let mut y = self.conv.run(&Hwc {
+            h: ho,
+            w: wo,
+            c: co,
+            d: y,
+        });
+        // up2: [h·w, 4·co], scattered and added with both biases, then relu.
+        let mut u = vec![0.0f32; h * w * 4 * co];
+        u.par_chunks_mut(BAND_PIXELS * 4 * co)
+            .enumerate()
+            .for_each(|(band, dst)| {
+                let m = dst.len() / (4 * co);
+                let p0 = band * BAND_PIXELS;
+                sgemm(
+                    m,
+                    4 * co,
+                    ci,
+                    Mat {
+                        data: &x.d[p0 * ci..(p0 + m) * ci],
+                        ld: ci,
+                    },
+                    Mat {
+                        data: &self.up2,
+                        ld: 4 * co,
+                    },
+                    dst,
+                    4 * co,
+                    false,
+                    1,
+                );
+            });
+        y.d.par_chunks_mut(wo * co)
+            .enumerate()
+            .for_each(|(oy, row)| {
+                let (iy, py) = (oy / 2, oy % 2);
+                for ox in 0..wo {
+                    let (ix, px) = (ox / 2, ox % 2);
+                    let src = ((iy * w + ix) * 4 + py * 2 + px) * co;
+                    for k in 0..co {
+                        let v = &mut row[ox * co + k];
+                        *v = (*v + self.conv_b[k] + u[src + k] + self.up2_b[k]).max(0.0);
+                    }
+                }
+            });
+        y
+    }
+}
+
+/// `M_est` on the CPU, packed for the fast path.
+#[derive(Debug, Clone)]
+pub struct UNet {
+    in_channels: usize,
+    params: usize,
+    eps: f32,
+    slope: f32,
+    stem: PackedConv,
+    enc: Vec<Basic>,
+    dec1: (Reverse, Basic),
+    dec2: (Reverse, Basic),
+    dec3: (Reverse, Basic),
+    dec4: (Basic, Basic),
+    head: PackedConv,
+}
+
+impl UNet {
+    /// Packs the `est.*` tensors of validated weights.
+    pub fn new(weights: &Weights) -> Result<Self> {
+        let cfg = weights.config();
+        let c = cfg.width;
+        let est = weights.scope("est");
+        let mut enc = Vec::new();
+        let mut prev = c;
+        for (k, w) in [c, 2 * c, 4 * c, 8 * c].into_iter().enumerate() {
+            let s = if k == 0 { 1 } else { 2 };
+            enc.push(Basic::new(
+                &est.scope(&format!("enc{}.0", k + 1)),
+                prev,
+                w,
+                s,
+            )?);
+            enc.push(Basic::new(&est.scope(&format!("enc{}.1", k + 1)), w, w, 1)?);
+            prev = w;
+        }
+        Ok(Self {
+            in_channels: cfg.in_channels,
+            params: cfg.param_channels,
+            eps: cfg.norm_eps,
+            slope: cfg.slopes.ha,
+            stem: PackedConv::fused(
+                &[(est.get("stem.weight", &[c, cfg.in_channels, 7, 7])?, c, 7)],
+                cfg.in_channels,
+                7,
+                1,
+            ),
+            enc,
+            dec1: (
+                Reverse::new(&est.scope("dec1.0"), 8 * c, 8 * c)?,
+                Basic::new(&est.scope("dec1.1"), 8 * c, 8 * c, 1)?,
+            ),
+            dec2: (
+                Reverse::new(&est.scope("dec2.0"), 12 * c, 4 * c)?,
+                Basic::new(&est.scope("dec2.1"), 4 * c, 4 * c, 1)?,
+            ),
+            dec3: (
+                Reverse::new(&est.scope("dec3.0"), 6 * c, 2 * c)?,
+                Basic::new(&est.scope("dec3.1"), 2 * c, 2 * c, 1)?,
+            ),
+            dec4: (
+                Basic::new(&est.scope("dec4.0"), 3 * c, c, 1)?,
+                Basic::new(&est.scope("dec4.1"), c, c, 1)?,
+            ),
+            head: PackedConv::fused(
+                &[(
+                    est.get("head.weight", &[cfg.param_channels, c, 7, 7])?,
+                    cfg.param_channels,
+                    7,
+                )],
+                c,
+                7,
+                1,
+            ),
+        })
+    }
+
+    /// Runs `M_est` on the network input (CHW, `in_channels × height × width`,
+    /// docs/FORMAT.md) and returns the param map (HWC). Any size: the input is
+    /// replicate-padded bottom/right to a multiple of 8 and the output cropped.
+    pub fn estimate(&self, input: &[f32], height: usize, width: usize) -> Result<ParamMap> {
+        check_image(height, width)?;
+        let ci = self.in_channels;
+        check_len("network input", ci * height * width, input.len())?;
+        let (hp, wp) = (pad_multiple(height), pad_multiple(width));
+        let mut d = vec![0.0f32; hp * wp * ci];
+        for y in 0..hp {
+            for x in 0..wp {
+                for c in 0..ci {
+                    d[(y * wp + x) * ci + c] =
+                        input[(c * height + y.min(height - 1)) * width + x.min(width - 1)];
+                }
+            }
+        }
+        let (eps, sl) = (self.eps, self.slope);
+        let mut x = self.stem.run(&Hwc {
+            h: hp,
+            w: wp,
+            c: ci,
+            d,
+        });
+        let mut skips = Vec::with_capacity(4);
+        for pair in self.enc.chunks_exact(2) {
+            x = pair[1].run(&pair[0].run(&x, eps, sl), eps, sl);
+            skips.push(x.clone());
+        }
+        x.d.iter_mut().for_each(|v| *v = v.atan());
+        let x = self.dec1.1.run(&self.dec1.0.run(&x), eps, sl);
+        let x = self
+            .dec2
+            .1
+            .run(&self.dec2.0.run(&concat(&x, &skips[2])), eps, sl);
+        let x = self
+            .dec3
+            .1
+            .run(&self.dec3.0.run(&concat(&x, &skips[1])), eps, sl);
+        let x = self
+            .dec4
+            .1
+            .run(&self.dec4.0.run(&concat(&x, &skips[0]), eps, sl), eps, sl);
+        let out = self.head.run(&x);
+        let pc = self.params;
+        let mut data = Vec::with_capacity(height * width * pc);
+        for y in 0..height {
+            data.extend_from_slice(&out.d[y * wp * pc..(y * wp + width) * pc]);
+        }
+        Ok(ParamMap {
+            height,
+            width,
+            channels: pc,
+            data,
+        })
+    }
+}
