@@ -16,6 +16,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .ggx import normalize
+
 NORM_EPS = 1e-5
 HA_SLOPE = 0.1
 ND_SLOPE = 0.01
@@ -83,6 +85,14 @@ CONFIGS = {
 def conv3x3(x: torch.Tensor, weight: torch.Tensor, stride: int, bias: torch.Tensor | None = None) -> torch.Tensor:
     """3×3 convolution with replicate padding 1."""
     return F.conv2d(F.pad(x, (1, 1, 1, 1), mode="replicate"), weight, bias, stride=stride)
+
+
+def instance_norm(x: torch.Tensor) -> torch.Tensor:
+    """Non-affine InstanceNorm (biased variance, eps 1e-5); unlike ``F.instance_norm`` it accepts 1×1
+    maps (→ 0), which the deepest stage sees for 8×8 inputs."""
+    mean = x.mean(dim=(-2, -1), keepdim=True)
+    var = (x - mean).square().mean(dim=(-2, -1), keepdim=True)
+    return (x - mean) * torch.rsqrt(var + NORM_EPS)
 
 
 class Conv(nn.Module):
@@ -168,7 +178,7 @@ class HAConv(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         a = torch.sigmoid(self.gate(x))
-        b = F.leaky_relu(self.feat(F.instance_norm(x, eps=NORM_EPS)), HA_SLOPE)
+        b = F.leaky_relu(self.feat(instance_norm(x)), HA_SLOPE)
         c = torch.cat([self.inc1b(self.inc1a(x)), self.inc2(x)], dim=1)
         return a * b + c
 
@@ -304,9 +314,9 @@ def init_linear(*layers: nn.Linear) -> None:
 
 def query_dirs(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     """``[..., 9]`` = ``[wi, wo, normalize(wi + wo)]`` for unit ``wi``, ``wo`` ``[..., 3]``."""
-    s = wi + wo
-    wh = s / torch.clamp(torch.linalg.vector_norm(s, dim=-1, keepdim=True), min=1e-30)
-    return torch.cat([wi, wo, wh], dim=-1)
+    # Same normalisation as ggx.directions: octave 15 of the encoding turns a 1-ulp difference in
+    # wh into ~1e-3 in the output, so every path must compute wh identically.
+    return torch.cat([wi, wo, normalize(wi + wo)], dim=-1)
 
 
 class NamModel(nn.Module):
