@@ -49,6 +49,26 @@ impl Model {
     }
 }
 
+/// Row-major `c[m×n] = a[m×k] · b[k×n]` with this crate's blocked GEMM on the
+/// current rayon pool (exposed for benchmarks and engines).
+pub fn matmul(m: usize, n: usize, k: usize, a: &[f32], b: &[f32], c: &mut [f32]) -> Result<()> {
+    error::check_len("a", m * k, a.len())?;
+    error::check_len("b", k * n, b.len())?;
+    error::check_len("c", m * n, c.len())?;
+    sgemm::sgemm(
+        m,
+        n,
+        k,
+        sgemm::Mat { data: a, ld: k },
+        sgemm::Mat { data: b, ld: n },
+        c,
+        n,
+        false,
+        rayon::current_num_threads(),
+    );
+    Ok(())
+}
+
 /// Multiply-add rate of this crate's GEMM on an `n×n×n` f32 product using the
 /// current rayon pool, in GFLOP/s (2 flops per multiply-add); the best of `reps`.
 /// Benchmarks report network throughput against it.
