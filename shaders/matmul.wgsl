@@ -43,7 +43,12 @@ fn matmul(
 ) {
     let m0 = wid.y * TILE;
     let n0 = wid.x * TILE;
-    var acc: array<vec4<f32>, 4>;
+    // Named accumulators (no dynamically indexed array) stay in registers on every backend;
+    // llvmpipe spills an indexed private array to memory.
+    var acc0 = vec4<f32>(0.0);
+    var acc1 = vec4<f32>(0.0);
+    var acc2 = vec4<f32>(0.0);
+    var acc3 = vec4<f32>(0.0);
     for (var k0 = 0u; k0 < p.inner; k0 += BK) {
         for (var e = li; e < TILE * BK; e += 256u) {
             let r = e / BK;
@@ -65,27 +70,67 @@ fn matmul(
             let xo = kk * TILE + lid.y;
             let wo = kk * TILE + lid.x;
             let bv = vec4<f32>(ws[wo], ws[wo + 16u], ws[wo + 32u], ws[wo + 48u]);
-            acc[0] = fma(vec4<f32>(xs[xo]), bv, acc[0]);
-            acc[1] = fma(vec4<f32>(xs[xo + 16u]), bv, acc[1]);
-            acc[2] = fma(vec4<f32>(xs[xo + 32u]), bv, acc[2]);
-            acc[3] = fma(vec4<f32>(xs[xo + 48u]), bv, acc[3]);
+            acc0 = fma(vec4<f32>(xs[xo]), bv, acc0);
+            acc1 = fma(vec4<f32>(xs[xo + 16u]), bv, acc1);
+            acc2 = fma(vec4<f32>(xs[xo + 32u]), bv, acc2);
+            acc3 = fma(vec4<f32>(xs[xo + 48u]), bv, acc3);
         }
         workgroupBarrier();
     }
-    for (var i = 0u; i < 4u; i++) {
-        let m = m0 + lid.y + 16u * i;
-        if m >= p.rows {
-            continue;
-        }
-        for (var j = 0u; j < 4u; j++) {
-            let n = n0 + lid.x + 16u * j;
-            if n < p.cols {
-                var v = acc[i][j];
-                if p.act == 2u {
-                    v = select(v * p.slope, v, v >= 0.0);
-                }
-                y[m * p.y_stride + p.y_base + n] = st(v);
-            }
-        }
+    store_row(m0 + lid.y, n0 + lid.x, acc0);
+    store_row(m0 + lid.y + 16u, n0 + lid.x, acc1);
+    store_row(m0 + lid.y + 32u, n0 + lid.x, acc2);
+    store_row(m0 + lid.y + 48u, n0 + lid.x, acc3);
+}
+
+// Writes y[m, n + 16 j] = act(v[j]) for j in 0..4, within bounds.
+fn store_row(m: u32, n: u32, v: vec4<f32>) {
+    if m >= p.rows {
+        return;
     }
+    var a = v;
+    if p.act == 2u {
+        a = select(v * p.slope, v, v >= vec4<f32>(0.0));
+    }
+    let row = m * p.y_stride + p.y_base;
+    if n < p.cols { y[row + n] = st(a.x); }
+    if n + 16u < p.cols { y[row + n + 16u] = st(a.y); }
+    if n + 32u < p.cols { y[row + n + 32u] = st(a.z); }
+    if n + 48u < p.cols { y[row + n + 48u] = st(a.w); }
+}
+
+// Barrier-free variant for CPU adapters (llvmpipe runs workgroup barriers as coroutine
+// switches, which costs more than the reuse they buy; the CPU caches play the role of
+// workgroup memory). Each invocation computes rows 4 gy .. 4 gy + 3 and columns
+// gx + 16 j (j < 4) straight from storage. Dispatch: (ceil(cols / 64), ceil(rows / 4), 1)
+// workgroups of 16.
+@compute @workgroup_size(16, 1, 1)
+fn matmul_direct(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>) {
+    let m0 = gid.y * 4u;
+    let n0 = wid.x * TILE + lid.x;
+    let last_m = p.rows - 1u;
+    let last_n = p.cols - 1u;
+    let xr0 = min(m0, last_m) * p.x_stride + p.x_base;
+    let xr1 = min(m0 + 1u, last_m) * p.x_stride + p.x_base;
+    let xr2 = min(m0 + 2u, last_m) * p.x_stride + p.x_base;
+    let xr3 = min(m0 + 3u, last_m) * p.x_stride + p.x_base;
+    let wr0 = min(n0, last_n) * p.inner;
+    let wr1 = min(n0 + 16u, last_n) * p.inner;
+    let wr2 = min(n0 + 32u, last_n) * p.inner;
+    let wr3 = min(n0 + 48u, last_n) * p.inner;
+    var acc0 = vec4<f32>(0.0);
+    var acc1 = vec4<f32>(0.0);
+    var acc2 = vec4<f32>(0.0);
+    var acc3 = vec4<f32>(0.0);
+    for (var k = 0u; k < p.inner; k++) {
+        let bv = vec4<f32>(f32(w[wr0 + k]), f32(w[wr1 + k]), f32(w[wr2 + k]), f32(w[wr3 + k]));
+        acc0 = fma(vec4<f32>(f32(x[xr0 + k])), bv, acc0);
+        acc1 = fma(vec4<f32>(f32(x[xr1 + k])), bv, acc1);
+        acc2 = fma(vec4<f32>(f32(x[xr2 + k])), bv, acc2);
+        acc3 = fma(vec4<f32>(f32(x[xr3 + k])), bv, acc3);
+    }
+    store_row(m0, n0, acc0);
+    store_row(m0 + 1u, n0, acc1);
+    store_row(m0 + 2u, n0, acc2);
+    store_row(m0 + 3u, n0, acc3);
 }

@@ -42,12 +42,22 @@ pub(crate) struct DeviceBuffer {
     pub precision: Precision,
 }
 
+/// Which matmul entry point runs the MLP layers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MatmulVariant {
+    /// 64x64 tiles staged through workgroup memory (GPUs).
+    Tiled,
+    /// Barrier-free 4x4 register tiles straight from storage (CPU adapters such as llvmpipe).
+    Direct,
+}
+
 /// Owns the device handles, the lazily built pipelines and shared helper buffers.
 #[derive(Debug)]
 pub struct GpuContext {
     device: wgpu::Device,
     queue: wgpu::Queue,
     pipelines: Mutex<HashMap<PipelineKey, Arc<Pipeline>>>,
+    matmul: MatmulVariant,
     /// Bound where a kernel's optional input is unused (bias, norm, residual).
     dummy: wgpu::Buffer,
 }
@@ -58,7 +68,14 @@ fn pop_scope(scope: wgpu::ErrorScopeGuard) -> Option<wgpu::Error> {
 
 impl GpuContext {
     /// Wraps a caller-owned device and queue (cheap clones of wgpu handles).
-    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Self> {
+    ///
+    /// `adapter_type` picks kernel variants: `DeviceType::Cpu` (lavapipe) gets the
+    /// barrier-free matmul, everything else the workgroup-tiled one.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_type: wgpu::DeviceType,
+    ) -> Result<Self> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let dummy = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("nam-gpu dummy"),
@@ -76,6 +93,11 @@ impl GpuContext {
             device: device.clone(),
             queue: queue.clone(),
             pipelines: Mutex::new(HashMap::new()),
+            matmul: if adapter_type == wgpu::DeviceType::Cpu {
+                MatmulVariant::Direct
+            } else {
+                MatmulVariant::Tiled
+            },
             dummy,
         })
     }
@@ -92,7 +114,8 @@ impl GpuContext {
 
     /// Fails unless the device can run `precision` kernels.
     pub fn check_precision(&self, precision: Precision) -> Result<()> {
-        if precision == Precision::F16 && !self.device.features().contains(wgpu::Features::SHADER_F16)
+        if precision == Precision::F16
+            && !self.device.features().contains(wgpu::Features::SHADER_F16)
         {
             return Err(GpuError::MissingFeature {
                 feature: "SHADER_F16",
@@ -100,6 +123,16 @@ impl GpuContext {
             });
         }
         Ok(())
+    }
+
+    /// The matmul variant in use.
+    pub fn matmul_variant(&self) -> MatmulVariant {
+        self.matmul
+    }
+
+    /// Overrides the matmul variant (for comparisons; both compute the same product).
+    pub fn set_matmul_variant(&mut self, v: MatmulVariant) {
+        self.matmul = v;
     }
 
     pub(crate) fn dummy(&self) -> &wgpu::Buffer {
@@ -118,7 +151,10 @@ impl GpuContext {
     /// Returns the pipeline for `key`, compiling it on first use. Validation errors of the
     /// module or pipeline are captured by an error scope and returned.
     pub(crate) fn pipeline(&self, key: &PipelineKey) -> Result<Arc<Pipeline>> {
-        let mut cache = self.pipelines.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut cache = self
+            .pipelines
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
         if let Some(p) = cache.get(key) {
             return Ok(p.clone());
         }
@@ -129,10 +165,13 @@ impl GpuContext {
             key.entry,
             key.precision
         );
-        let source = key.family.source(key.precision).ok_or_else(|| GpuError::Pipeline {
-            kernel: name.clone(),
-            message: "no variant for this precision".into(),
-        })?;
+        let source = key
+            .family
+            .source(key.precision)
+            .ok_or_else(|| GpuError::Pipeline {
+                kernel: name.clone(),
+                message: "no variant for this precision".into(),
+            })?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self
             .device
@@ -207,7 +246,12 @@ impl GpuContext {
         Ok(p)
     }
 
-    fn create_buffer(&self, label: &str, size: u64, usage: wgpu::BufferUsages) -> Result<wgpu::Buffer> {
+    fn create_buffer(
+        &self,
+        label: &str,
+        size: u64,
+        usage: wgpu::BufferUsages,
+    ) -> Result<wgpu::Buffer> {
         let limits = self.device.limits();
         if size > limits.max_buffer_size {
             return Err(GpuError::Size {
@@ -236,7 +280,12 @@ impl GpuContext {
     }
 
     /// A zero-initialised storage buffer of `elems` elements.
-    pub(crate) fn storage(&self, label: &str, elems: u64, precision: Precision) -> Result<DeviceBuffer> {
+    pub(crate) fn storage(
+        &self,
+        label: &str,
+        elems: u64,
+        precision: Precision,
+    ) -> Result<DeviceBuffer> {
         let max = self.max_binding_elems(precision);
         if elems > max {
             return Err(GpuError::Size {
@@ -249,7 +298,9 @@ impl GpuContext {
         let buffer = self.create_buffer(
             label,
             elems * precision.elem_bytes(),
-            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+            wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC,
         )?;
         Ok(DeviceBuffer {
             buffer,
@@ -272,7 +323,12 @@ impl GpuContext {
     }
 
     /// A storage buffer holding `data` converted to `precision`.
-    pub(crate) fn upload(&self, label: &str, data: &[f32], precision: Precision) -> Result<DeviceBuffer> {
+    pub(crate) fn upload(
+        &self,
+        label: &str,
+        data: &[f32],
+        precision: Precision,
+    ) -> Result<DeviceBuffer> {
         let buf = self.storage(label, data.len() as u64, precision)?;
         self.write(&buf, 0, data)?;
         Ok(buf)
@@ -374,7 +430,9 @@ impl GpuContext {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let mut encoder = self
             .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nam-gpu") });
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("nam-gpu"),
+            });
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("nam-gpu"),
@@ -404,7 +462,9 @@ impl GpuContext {
                 reason: format!("{count} elements from a buffer of {}", buf.elems),
             });
         }
-        let bytes = (count * buf.precision.elem_bytes()).next_multiple_of(4).max(4);
+        let bytes = (count * buf.precision.elem_bytes())
+            .next_multiple_of(4)
+            .max(4);
         let staging = self.create_buffer(
             "nam-gpu readback",
             bytes,

@@ -17,13 +17,17 @@ pub struct DeviceHandles {
 /// has it. Returns `None` and prints the reason to stderr when no adapter or device exists.
 pub fn request_device(want_f16: bool) -> Option<DeviceHandles> {
     let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
-    let adapter = match pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions::default())) {
-        Ok(a) => a,
-        Err(e) => {
-            eprintln!("nam-gpu: no GPU adapter ({e}); install mesa-vulkan-drivers for lavapipe");
-            return None;
-        }
-    };
+    let adapter =
+        match pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions::default()))
+        {
+            Ok(a) => a,
+            Err(e) => {
+                eprintln!(
+                    "nam-gpu: no GPU adapter ({e}); install mesa-vulkan-drivers for lavapipe"
+                );
+                return None;
+            }
+        };
     let mut features = wgpu::Features::empty();
     if want_f16 && adapter.features().contains(wgpu::Features::SHADER_F16) {
         features |= wgpu::Features::SHADER_F16;
@@ -41,7 +45,10 @@ pub fn request_device(want_f16: bool) -> Option<DeviceHandles> {
             info: adapter.get_info(),
         }),
         Err(e) => {
-            eprintln!("nam-gpu: adapter {:?} refused a device: {e}", adapter.get_info().name);
+            eprintln!(
+                "nam-gpu: adapter {:?} refused a device: {e}",
+                adapter.get_info().name
+            );
             None
         }
     }

@@ -3,7 +3,7 @@
 
 use std::sync::OnceLock;
 
-use crate::context::{DeviceBuffer, GpuContext};
+use crate::context::{DeviceBuffer, GpuContext, MatmulVariant};
 use crate::ops::{self, Act, ConvShape, Elementwise, GateTail, Rows, View};
 use crate::shaders::Precision;
 
@@ -17,8 +17,11 @@ fn ctx() -> Option<&'static GpuContext> {
     static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
     let c = CTX.get_or_init(|| {
         let h = crate::request_device(true)?;
-        eprintln!("nam-gpu kernel tests on {:?} ({:?})", h.info.name, h.info.backend);
-        match GpuContext::new(&h.device, &h.queue) {
+        eprintln!(
+            "nam-gpu kernel tests on {:?} ({:?})",
+            h.info.name, h.info.backend
+        );
+        match GpuContext::new(&h.device, &h.queue, h.info.device_type) {
             Ok(c) => Some(c),
             Err(e) => {
                 eprintln!("nam-gpu: context creation failed: {e}");
@@ -75,17 +78,25 @@ fn assert_close(got: &[f32], want: &[f32], tol: f32, what: &str) {
     }
 }
 
-fn run(ctx: &GpuContext, d: Vec<crate::context::Dispatch>, out: &DeviceBuffer, n: usize) -> Vec<f32> {
+fn run(
+    ctx: &GpuContext,
+    d: Vec<crate::context::Dispatch>,
+    out: &DeviceBuffer,
+    n: usize,
+) -> Vec<f32> {
     ctx.run(&d).unwrap_or_else(|e| panic!("run: {e}"));
-    ctx.read(out, n as u64).unwrap_or_else(|e| panic!("read: {e}"))
+    ctx.read(out, n as u64)
+        .unwrap_or_else(|e| panic!("read: {e}"))
 }
 
 fn up(ctx: &GpuContext, data: &[f32], p: Precision) -> DeviceBuffer {
-    ctx.upload("test", data, p).unwrap_or_else(|e| panic!("upload: {e}"))
+    ctx.upload("test", data, p)
+        .unwrap_or_else(|e| panic!("upload: {e}"))
 }
 
 fn zeros(ctx: &GpuContext, n: usize, p: Precision) -> DeviceBuffer {
-    ctx.storage("test out", n as u64, p).unwrap_or_else(|e| panic!("alloc: {e}"))
+    ctx.storage("test out", n as u64, p)
+        .unwrap_or_else(|e| panic!("alloc: {e}"))
 }
 
 fn act_ref(v: f64, act: Act) -> f64 {
@@ -120,18 +131,28 @@ fn conv_ref(
             for ox in 0..wo as i64 {
                 let mut acc = bias.map_or(0.0, |b| f64::from(b[co]));
                 for ci in 0..cin {
-                    let (sc, sh) = norm.map_or((1.0, 0.0), |n| (f64::from(n[2 * ci]), f64::from(n[2 * ci + 1])));
+                    let (sc, sh) = norm.map_or((1.0, 0.0), |n| {
+                        (f64::from(n[2 * ci]), f64::from(n[2 * ci + 1]))
+                    });
                     for ky in 0..k {
                         for kx in 0..k {
-                            let iy = (oy * i64::from(s.stride) + ky - i64::from(s.pad)).clamp(0, h - 1);
-                            let ix = (ox * i64::from(s.stride) + kx - i64::from(s.pad)).clamp(0, wd - 1);
-                            let xv = f64::from(x[ci * (h * wd) as usize + (iy * wd + ix) as usize]) * sc + sh;
-                            let wv = f64::from(w[((co * cin + ci) * k as usize + ky as usize) * k as usize + kx as usize]);
+                            let iy =
+                                (oy * i64::from(s.stride) + ky - i64::from(s.pad)).clamp(0, h - 1);
+                            let ix =
+                                (ox * i64::from(s.stride) + kx - i64::from(s.pad)).clamp(0, wd - 1);
+                            let xv = f64::from(x[ci * (h * wd) as usize + (iy * wd + ix) as usize])
+                                * sc
+                                + sh;
+                            let wv = f64::from(
+                                w[((co * cin + ci) * k as usize + ky as usize) * k as usize
+                                    + kx as usize],
+                            );
                             acc += xv * wv;
                         }
                     }
                 }
-                out[co * (ho * wo) as usize + (oy * i64::from(wo) + ox) as usize] = act_ref(acc, act) as f32;
+                out[co * (ho * wo) as usize + (oy * i64::from(wo) + ox) as usize] =
+                    act_ref(acc, act) as f32;
             }
         }
     }
@@ -153,19 +174,43 @@ fn conv2d_matches_cpu_reference_on_odd_sizes() {
     for (p, tol) in precisions(ctx) {
         // (cin, h, w, cout, k, stride, pad, bias, norm, act)
         let cases = [
-            (3u32, 9u32, 11u32, 5u32, 3u32, 1u32, 1u32, false, false, Act::None),
+            (
+                3u32,
+                9u32,
+                11u32,
+                5u32,
+                3u32,
+                1u32,
+                1u32,
+                false,
+                false,
+                Act::None,
+            ),
             (3, 9, 11, 6, 3, 2, 1, true, true, Act::Leaky(0.1)),
             (4, 13, 10, 7, 7, 1, 3, false, false, Act::Relu),
             (5, 7, 9, 3, 1, 2, 0, true, false, Act::Sigmoid),
             (2, 5, 3, 9, 7, 2, 3, true, true, Act::None),
         ];
-        for (i, &(cin, h, w, cout, k, stride, pad, use_bias, use_norm, act)) in cases.iter().enumerate() {
-            let s = ConvShape { cin, h, w, cout, k, stride, pad };
+        for (i, &(cin, h, w, cout, k, stride, pad, use_bias, use_norm, act)) in
+            cases.iter().enumerate()
+        {
+            let s = ConvShape {
+                cin,
+                h,
+                w,
+                cout,
+                k,
+                stride,
+                pad,
+            };
             let (ho, wo) = s.out_hw();
             let x = q(&rand_vec((cin * h * w) as usize + 5, 10 + i as u64), p);
             let wt = q(&rand_vec((cout * cin * k * k) as usize, 20 + i as u64), p);
             let b = q(&rand_vec(cout as usize, 30 + i as u64), p);
-            let norm: Vec<f32> = rand_vec(2 * cin as usize, 40 + i as u64).iter().map(|v| v + 1.5).collect();
+            let norm: Vec<f32> = rand_vec(2 * cin as usize, 40 + i as u64)
+                .iter()
+                .map(|v| v + 1.5)
+                .collect();
             let xb = up(ctx, &x, p);
             let wb = up(ctx, &wt, p);
             let bb = up(ctx, &b, p);
@@ -175,17 +220,30 @@ fn conv2d_matches_cpu_reference_on_odd_sizes() {
             let d = ops::conv2d(
                 ctx,
                 p,
-                View { buf: &xb.buffer, base: 5 },
+                View {
+                    buf: &xb.buffer,
+                    base: 5,
+                },
                 &wb.buffer,
                 use_bias.then_some(&bb.buffer),
                 use_norm.then_some(&nb.buffer),
-                View { buf: &out.buffer, base: 3 },
+                View {
+                    buf: &out.buffer,
+                    base: 3,
+                },
                 s,
                 act,
             )
             .unwrap_or_else(|e| panic!("{e}"));
             let got = run(ctx, vec![d], &out, out.elems as usize);
-            let want = conv_ref(&x[5..], &wt, use_bias.then_some(&b[..]), use_norm.then_some(&norm[..]), s, act);
+            let want = conv_ref(
+                &x[5..],
+                &wt,
+                use_bias.then_some(&b[..]),
+                use_norm.then_some(&norm[..]),
+                s,
+                act,
+            );
             assert_close(&got[3..], &want, tol, &format!("conv2d case {i} {p:?}"));
         }
     }
@@ -195,10 +253,22 @@ fn conv2d_matches_cpu_reference_on_odd_sizes() {
 fn conv_transpose_matches_cpu_reference_on_odd_sizes() {
     let Some(ctx) = ctx() else { return };
     for (p, tol) in precisions(ctx) {
-        for (i, &(cin, h, w, cout, k, pad, relu)) in
-            [(3u32, 5u32, 7u32, 4u32, 4u32, 1u32, true), (5, 3, 5, 3, 2, 0, false)].iter().enumerate()
+        for (i, &(cin, h, w, cout, k, pad, relu)) in [
+            (3u32, 5u32, 7u32, 4u32, 4u32, 1u32, true),
+            (5, 3, 5, 3, 2, 0, false),
+        ]
+        .iter()
+        .enumerate()
         {
-            let s = ConvShape { cin, h, w, cout, k, stride: 2, pad };
+            let s = ConvShape {
+                cin,
+                h,
+                w,
+                cout,
+                k,
+                stride: 2,
+                pad,
+            };
             let (ho, wo) = ((h - 1) * 2 + k - 2 * pad, (w - 1) * 2 + k - 2 * pad);
             let x = q(&rand_vec((cin * h * w) as usize, 50 + i as u64), p);
             let wt = q(&rand_vec((cin * cout * k * k) as usize, 60 + i as u64), p);
@@ -208,18 +278,31 @@ fn conv_transpose_matches_cpu_reference_on_odd_sizes() {
             let d = ops::conv_transpose2d(
                 ctx,
                 p,
-                View { buf: &xb.buffer, base: 0 },
+                View {
+                    buf: &xb.buffer,
+                    base: 0,
+                },
                 &wb.buffer,
                 Some(&bb.buffer),
-                View { buf: &out.buffer, base: 0 },
+                View {
+                    buf: &out.buffer,
+                    base: 0,
+                },
                 s,
                 relu,
             )
             .unwrap_or_else(|e| panic!("{e}"));
             let got = run(ctx, vec![d], &out, out.elems as usize);
             // Scatter form of the definition: every input tap adds to one output pixel.
-            let (cin, cout, h, w, k, ho, wo) =
-                (cin as usize, cout as usize, h as i64, w as i64, k as i64, ho as i64, wo as i64);
+            let (cin, cout, h, w, k, ho, wo) = (
+                cin as usize,
+                cout as usize,
+                h as i64,
+                w as i64,
+                k as i64,
+                ho as i64,
+                wo as i64,
+            );
             let mut want = vec![0.0f64; cout * (ho * wo) as usize];
             for ci in 0..cin {
                 for iy in 0..h {
@@ -230,11 +313,14 @@ fn conv_transpose_matches_cpu_reference_on_odd_sizes() {
                                     let oy = iy * 2 - i64::from(pad) + ky;
                                     let ox = ix * 2 - i64::from(pad) + kx;
                                     if (0..ho).contains(&oy) && (0..wo).contains(&ox) {
-                                        want[co * (ho * wo) as usize + (oy * wo + ox) as usize] += f64::from(
-                                            x[ci * (h * w) as usize + (iy * w + ix) as usize],
-                                        ) * f64::from(
-                                            wt[((ci * cout + co) * k as usize + ky as usize) * k as usize + kx as usize],
-                                        );
+                                        want[co * (ho * wo) as usize + (oy * wo + ox) as usize] +=
+                                            f64::from(
+                                                x[ci * (h * w) as usize + (iy * w + ix) as usize],
+                                            ) * f64::from(
+                                                wt[((ci * cout + co) * k as usize + ky as usize)
+                                                    * k as usize
+                                                    + kx as usize],
+                                            );
                                     }
                                 }
                             }
@@ -263,7 +349,11 @@ fn instance_norm_matches_cpu_reference_on_odd_sizes() {
             let hw = h * w;
             // Offset mean and scale so the two-pass variance matters.
             let x: Vec<f32> = q(
-                &rand_vec(c * hw, 80 + hw as u64).iter().enumerate().map(|(i, v)| 3.0 + v * (1 + i / hw) as f32).collect::<Vec<_>>(),
+                &rand_vec(c * hw, 80 + hw as u64)
+                    .iter()
+                    .enumerate()
+                    .map(|(i, v)| 3.0 + v * (1 + i / hw) as f32)
+                    .collect::<Vec<_>>(),
                 p,
             );
             let xb = up(ctx, &x, p);
@@ -271,16 +361,33 @@ fn instance_norm_matches_cpu_reference_on_odd_sizes() {
             let out = zeros(ctx, c * hw, p);
             let eps = 1e-5;
             let d = vec![
-                ops::instance_norm_stats(ctx, p, View { buf: &xb.buffer, base: 0 }, c as u32, hw as u32, eps, &norm.buffer)
-                    .unwrap_or_else(|e| panic!("{e}")),
+                ops::instance_norm_stats(
+                    ctx,
+                    p,
+                    View {
+                        buf: &xb.buffer,
+                        base: 0,
+                    },
+                    c as u32,
+                    hw as u32,
+                    eps,
+                    &norm.buffer,
+                )
+                .unwrap_or_else(|e| panic!("{e}")),
                 ops::instance_norm_apply(
                     ctx,
                     p,
-                    View { buf: &xb.buffer, base: 0 },
+                    View {
+                        buf: &xb.buffer,
+                        base: 0,
+                    },
                     c as u32,
                     hw as u32,
                     &norm.buffer,
-                    View { buf: &out.buffer, base: 0 },
+                    View {
+                        buf: &out.buffer,
+                        base: 0,
+                    },
                 )
                 .unwrap_or_else(|e| panic!("{e}")),
             ];
@@ -288,11 +395,23 @@ fn instance_norm_matches_cpu_reference_on_odd_sizes() {
             let mut want = Vec::with_capacity(c * hw);
             for ch in x.chunks_exact(hw) {
                 let mean = ch.iter().map(|&v| f64::from(v)).sum::<f64>() / hw as f64;
-                let var = ch.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / hw as f64;
-                want.extend(ch.iter().map(|&v| ((f64::from(v) - mean) / (var + f64::from(eps)).sqrt()) as f32));
+                let var = ch
+                    .iter()
+                    .map(|&v| (f64::from(v) - mean).powi(2))
+                    .sum::<f64>()
+                    / hw as f64;
+                want.extend(
+                    ch.iter()
+                        .map(|&v| ((f64::from(v) - mean) / (var + f64::from(eps)).sqrt()) as f32),
+                );
             }
             // Normalised values are O(1); the tolerance applies to them directly.
-            assert_close(&got, &want, tol * 4.0, &format!("instance norm {c}x{h}x{w} {p:?}"));
+            assert_close(
+                &got,
+                &want,
+                tol * 4.0,
+                &format!("instance norm {c}x{h}x{w} {p:?}"),
+            );
         }
     }
 }
@@ -303,7 +422,15 @@ fn ha_gate_matches_cpu_reference_for_every_tail() {
     for (p, tol) in precisions(ctx) {
         let (c, hw) = (3usize, 35usize);
         let n = c * hw;
-        let [a, b, cc, res] = [1, 2, 3, 4].map(|s| q(&rand_vec(n, 90 + s).iter().map(|v| 3.0 * v).collect::<Vec<_>>(), p));
+        let [a, b, cc, res] = [1, 2, 3, 4].map(|s| {
+            q(
+                &rand_vec(n, 90 + s)
+                    .iter()
+                    .map(|v| 3.0 * v)
+                    .collect::<Vec<_>>(),
+                p,
+            )
+        });
         let ab = q(&rand_vec(2 * c, 95), p);
         let bufs = [&a, &b, &cc, &res, &ab].map(|v| up(ctx, v, p));
         for mode in 0..3 {
@@ -311,7 +438,10 @@ fn ha_gate_matches_cpu_reference_for_every_tail() {
             let tail = match mode {
                 0 => GateTail::Affine,
                 1 => GateTail::Relu,
-                _ => GateTail::Residual(View { buf: &bufs[3].buffer, base: 0 }),
+                _ => GateTail::Residual(View {
+                    buf: &bufs[3].buffer,
+                    base: 0,
+                }),
             };
             let d = ops::ha_gate(
                 ctx,
@@ -321,7 +451,10 @@ fn ha_gate_matches_cpu_reference_for_every_tail() {
                 &bufs[2].buffer,
                 &bufs[4].buffer,
                 tail,
-                View { buf: &out.buffer, base: 2 },
+                View {
+                    buf: &out.buffer,
+                    base: 2,
+                },
                 c as u32,
                 hw as u32,
                 0.1,
@@ -334,7 +467,8 @@ fn ha_gate_matches_cpu_reference_for_every_tail() {
                     let g = 1.0 / (1.0 + (-f64::from(a[i])).exp());
                     let bv = f64::from(b[i]);
                     let f = if bv >= 0.0 { bv } else { 0.1 * bv };
-                    let y = (g * f + f64::from(cc[i])) * f64::from(ab[2 * ch]) + f64::from(ab[2 * ch + 1]);
+                    let y = (g * f + f64::from(cc[i])) * f64::from(ab[2 * ch])
+                        + f64::from(ab[2 * ch + 1]);
                     (match mode {
                         0 => y,
                         1 => y.max(0.0),
@@ -353,7 +487,13 @@ fn elementwise_kernels_match_cpu_reference() {
     for (p, tol) in precisions(ctx) {
         let (c, hw) = (3usize, 101usize);
         let n = c * hw;
-        let x = q(&rand_vec(n + 1, 100).iter().map(|v| 4.0 * v).collect::<Vec<_>>(), p);
+        let x = q(
+            &rand_vec(n + 1, 100)
+                .iter()
+                .map(|v| 4.0 * v)
+                .collect::<Vec<_>>(),
+            p,
+        );
         let y = q(&rand_vec(n, 101), p);
         let ab = q(&rand_vec(2 * c, 102), p);
         let (xb, yb, abb) = (up(ctx, &x, p), up(ctx, &y, p), up(ctx, &ab, p));
@@ -361,23 +501,69 @@ fn elementwise_kernels_match_cpu_reference() {
         let cases: Vec<(&str, Elementwise<'_>, Vec<f64>)> = vec![
             (
                 "affine",
-                Elementwise::Affine { ab: &abb.buffer, hw: hw as u32 },
-                (0..n).map(|i| f64::from(xs[i]) * f64::from(ab[2 * (i / hw)]) + f64::from(ab[2 * (i / hw) + 1])).collect(),
+                Elementwise::Affine {
+                    ab: &abb.buffer,
+                    hw: hw as u32,
+                },
+                (0..n)
+                    .map(|i| {
+                        f64::from(xs[i]) * f64::from(ab[2 * (i / hw)])
+                            + f64::from(ab[2 * (i / hw) + 1])
+                    })
+                    .collect(),
             ),
             (
                 "add_relu",
-                Elementwise::AddRelu(View { buf: &yb.buffer, base: 0 }),
-                (0..n).map(|i| (f64::from(xs[i]) + f64::from(y[i])).max(0.0)).collect(),
+                Elementwise::AddRelu(View {
+                    buf: &yb.buffer,
+                    base: 0,
+                }),
+                (0..n)
+                    .map(|i| (f64::from(xs[i]) + f64::from(y[i])).max(0.0))
+                    .collect(),
             ),
-            ("leaky", Elementwise::Leaky(0.01), xs.iter().map(|&v| act_ref(f64::from(v), Act::Leaky(0.01))).collect()),
-            ("sigmoid", Elementwise::Sigmoid, xs.iter().map(|&v| act_ref(f64::from(v), Act::Sigmoid)).collect()),
-            ("atan", Elementwise::Atan, xs.iter().map(|&v| f64::from(v).atan()).collect()),
-            ("copy", Elementwise::Copy, xs.iter().map(|&v| f64::from(v)).collect()),
+            (
+                "leaky",
+                Elementwise::Leaky(0.01),
+                xs.iter()
+                    .map(|&v| act_ref(f64::from(v), Act::Leaky(0.01)))
+                    .collect(),
+            ),
+            (
+                "sigmoid",
+                Elementwise::Sigmoid,
+                xs.iter()
+                    .map(|&v| act_ref(f64::from(v), Act::Sigmoid))
+                    .collect(),
+            ),
+            (
+                "atan",
+                Elementwise::Atan,
+                xs.iter().map(|&v| f64::from(v).atan()).collect(),
+            ),
+            (
+                "copy",
+                Elementwise::Copy,
+                xs.iter().map(|&v| f64::from(v)).collect(),
+            ),
         ];
         for (name, op, want) in cases {
             let out = zeros(ctx, n, p);
-            let d = ops::elementwise(ctx, p, op, View { buf: &xb.buffer, base: 1 }, View { buf: &out.buffer, base: 0 }, n as u32)
-                .unwrap_or_else(|e| panic!("{e}"));
+            let d = ops::elementwise(
+                ctx,
+                p,
+                op,
+                View {
+                    buf: &xb.buffer,
+                    base: 1,
+                },
+                View {
+                    buf: &out.buffer,
+                    base: 0,
+                },
+                n as u32,
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
             let got = run(ctx, vec![d], &out, n);
             let want: Vec<f32> = want.iter().map(|&v| v as f32).collect();
             assert_close(&got, &want, tol, &format!("{name} {p:?}"));
@@ -393,23 +579,51 @@ const PE_ABS_TOL_F32: f32 = 1e-6;
 fn positional_encoding_matches_f64_reference_at_every_octave() {
     let Some(ctx) = ctx() else { return };
     for (p, tol) in precisions(ctx) {
-        let abs_tol = if p == Precision::F32 { PE_ABS_TOL_F32 } else { tol };
+        let abs_tol = if p == Precision::F32 {
+            PE_ABS_TOL_F32
+        } else {
+            tol
+        };
         let rows = 37usize;
         let mut dirs = rand_vec(rows * 9, 110);
         // Values whose multiples land near the reduction's branch points.
-        dirs[..9].copy_from_slice(&[0.5, -0.5, 1.0, -1.0, 0.25, 0.0, 0.999_999, -0.999_999, 1.0 / 3.0]);
+        dirs[..9].copy_from_slice(&[
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            0.25,
+            0.0,
+            0.999_999,
+            -0.999_999,
+            1.0 / 3.0,
+        ]);
         let db = up(ctx, &dirs, Precision::F32);
         let width = 9 + 18 * 16;
         let stride = width + 3;
         let out = zeros(ctx, rows * stride + 2, p);
-        let d = ops::pos_enc(ctx, p, &db.buffer, rows as u32, 16, View { buf: &out.buffer, base: 2 }, stride as u32)
-            .unwrap_or_else(|e| panic!("{e}"));
+        let d = ops::pos_enc(
+            ctx,
+            p,
+            &db.buffer,
+            rows as u32,
+            16,
+            View {
+                buf: &out.buffer,
+                base: 2,
+            },
+            stride as u32,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
         let got = run(ctx, vec![d], &out, rows * stride + 2);
         for r in 0..rows {
             let row = &got[2 + r * stride..2 + r * stride + width];
             for j in 0..9 {
                 let c = f64::from(dirs[r * 9 + j]);
-                assert!((row[j] - c as f32).abs() <= abs_tol, "identity part row {r} j {j}");
+                assert!(
+                    (row[j] - c as f32).abs() <= abs_tol,
+                    "identity part row {r} j {j}"
+                );
                 for k in 0..16 {
                     let arg = (1u64 << k) as f64 * std::f64::consts::PI * c;
                     let (s, co) = (arg.sin() as f32, arg.cos() as f32);
@@ -427,22 +641,40 @@ fn positional_encoding_matches_f64_reference_at_every_octave() {
 #[test]
 fn tiled_matmul_matches_cpu_reference_on_odd_sizes() {
     let Some(ctx) = ctx() else { return };
-    for (p, tol) in precisions(ctx) {
-        for &(rows, cols, inner, act) in
-            &[(70usize, 37usize, 45usize, Act::Leaky(0.01)), (3, 130, 17, Act::None), (129, 3, 594, Act::Leaky(0.001))]
-        {
+    for ((p, tol), variant) in precisions(ctx)
+        .into_iter()
+        .flat_map(|pt| [(pt, MatmulVariant::Tiled), (pt, MatmulVariant::Direct)])
+    {
+        for &(rows, cols, inner, act) in &[
+            (70usize, 37usize, 45usize, Act::Leaky(0.01)),
+            (3, 130, 17, Act::None),
+            (129, 3, 594, Act::Leaky(0.001)),
+        ] {
             // x rows have stride inner + 5 starting at column 2; y rows stride cols + 4 at column 1.
             let (xs, ys) = (inner + 5, cols + 4);
             let x = q(&rand_vec(rows * xs + 7, rows as u64), p);
             let w = q(&rand_vec(cols * inner, cols as u64), p);
             let (xb, wb) = (up(ctx, &x, p), up(ctx, &w, p));
             let out = zeros(ctx, rows * ys, p);
-            let d = ops::matmul(
+            let d = ops::matmul_as(
                 ctx,
+                variant,
                 p,
-                Rows { view: View { buf: &xb.buffer, base: 2 }, stride: xs as u32 },
+                Rows {
+                    view: View {
+                        buf: &xb.buffer,
+                        base: 2,
+                    },
+                    stride: xs as u32,
+                },
                 &wb.buffer,
-                Rows { view: View { buf: &out.buffer, base: 1 }, stride: ys as u32 },
+                Rows {
+                    view: View {
+                        buf: &out.buffer,
+                        base: 1,
+                    },
+                    stride: ys as u32,
+                },
                 rows as u32,
                 cols as u32,
                 inner as u32,
@@ -454,12 +686,19 @@ fn tiled_matmul_matches_cpu_reference_on_odd_sizes() {
             let mut want = Vec::new();
             for m in 0..rows {
                 for n in 0..cols {
-                    let s: f64 = (0..inner).map(|k| f64::from(x[m * xs + 2 + k]) * f64::from(w[n * inner + k])).sum();
+                    let s: f64 = (0..inner)
+                        .map(|k| f64::from(x[m * xs + 2 + k]) * f64::from(w[n * inner + k]))
+                        .sum();
                     want.push(act_ref(s, act) as f32);
                     g.push(got[m * ys + 1 + n]);
                 }
             }
-            assert_close(&g, &want, tol, &format!("matmul {rows}x{cols}x{inner} {p:?}"));
+            assert_close(
+                &g,
+                &want,
+                tol,
+                &format!("matmul {variant:?} {rows}x{cols}x{inner} {p:?}"),
+            );
         }
     }
 }

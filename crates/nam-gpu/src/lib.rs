@@ -10,7 +10,8 @@
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let weights = nam_weights::Weights::from_file("models/default.safetensors")?;
 //! let Some(gpu) = nam_gpu::request_device(false) else { return Ok(()) };
-//! let mut net = nam_gpu::GpuNetwork::new(&gpu.device, &gpu.queue, &weights, nam_gpu::Precision::F32)?;
+//! let mut net = nam_gpu::GpuNetwork::new(
+//!     &gpu.device, &gpu.queue, gpu.info.device_type, &weights, nam_gpu::Precision::F32)?;
 //! let (h, w) = (4, 4);
 //! let params = net.estimate(&vec![0.0; 4 * h * w], h, w)?; // [h, w, 64]
 //! let dirs = vec![0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0]; // ωi, ωo, ωh
@@ -32,7 +33,7 @@ mod weights;
 #[cfg(test)]
 mod kernel_tests;
 
-pub use context::GpuContext;
+pub use context::{GpuContext, MatmulVariant};
 pub use device::{DeviceHandles, request_device};
 pub use error::{GpuError, Result};
 pub use network::{GpuNetwork, MAX_RENDER_ROWS, UNET_MULTIPLE};

@@ -106,7 +106,15 @@ impl UnetBuilder<'_> {
         dst: View<'_>,
     ) -> Result<()> {
         let (ctx, p) = (self.ctx, self.precision);
-        let shape = ConvShape { cin, h, w: wd, cout, k: 3, stride, pad: 1 };
+        let shape = ConvShape {
+            cin,
+            h,
+            w: wd,
+            cout,
+            k: 3,
+            stride,
+            pad: 1,
+        };
         let (ho, wo) = shape.out_hw();
         let plane = u64::from(ho) * u64::from(wo);
         self.fits(u64::from(cout) * u64::from(h) * u64::from(wd), "HA scratch")?;
@@ -114,7 +122,17 @@ impl UnetBuilder<'_> {
         let s = &self.s;
         let mut d = vec![
             ops::instance_norm_stats(ctx, p, x, cin, h * wd, self.eps, &s.norm.buffer)?,
-            ops::conv2d(ctx, p, x, &w.gate.buffer, None, None, View::new(&s.a.buffer, 0)?, shape, Act::None)?,
+            ops::conv2d(
+                ctx,
+                p,
+                x,
+                &w.gate.buffer,
+                None,
+                None,
+                View::new(&s.a.buffer, 0)?,
+                shape,
+                Act::None,
+            )?,
             ops::conv2d(
                 ctx,
                 p,
@@ -145,7 +163,11 @@ impl UnetBuilder<'_> {
                 None,
                 None,
                 View::new(&s.c.buffer, 0)?,
-                ConvShape { cin: cout, cout: half, ..shape },
+                ConvShape {
+                    cin: cout,
+                    cout: half,
+                    ..shape
+                },
                 Act::None,
             )?,
             ops::conv2d(
@@ -156,7 +178,10 @@ impl UnetBuilder<'_> {
                 None,
                 None,
                 View::new(&s.c.buffer, u64::from(half) * plane)?,
-                ConvShape { cout: cout - half, ..shape },
+                ConvShape {
+                    cout: cout - half,
+                    ..shape
+                },
                 Act::None,
             )?,
             ops::ha_gate(
@@ -178,14 +203,38 @@ impl UnetBuilder<'_> {
     }
 
     /// BasicBlock: `relu(bn2(ha2(relu(bn1(ha1(x))))) + id)` into `dst`.
-    fn basic(&mut self, b: &BasicWeights, x: View<'_>, h: u32, w: u32, dst: View<'_>) -> Result<()> {
+    fn basic(
+        &mut self,
+        b: &BasicWeights,
+        x: View<'_>,
+        h: u32,
+        w: u32,
+        dst: View<'_>,
+    ) -> Result<()> {
         let (ho, wo) = (h / b.stride, w / b.stride);
         let y = self.s.y.buffer.clone();
         let d = self.s.d.buffer.clone();
-        self.ha(&b.ha1, &b.bn1, x, (b.cin, h, w), b.cout, b.stride, GateTail::Relu, View::new(&y, 0)?)?;
+        self.ha(
+            &b.ha1,
+            &b.bn1,
+            x,
+            (b.cin, h, w),
+            b.cout,
+            b.stride,
+            GateTail::Relu,
+            View::new(&y, 0)?,
+        )?;
         let res = match &b.down {
             Some((dw, db)) => {
-                let shape = ConvShape { cin: b.cin, h, w, cout: b.cout, k: 1, stride: b.stride, pad: 0 };
+                let shape = ConvShape {
+                    cin: b.cin,
+                    h,
+                    w,
+                    cout: b.cout,
+                    k: 1,
+                    stride: b.stride,
+                    pad: 0,
+                };
                 let op = ops::conv2d(
                     self.ctx,
                     self.precision,
@@ -202,20 +251,65 @@ impl UnetBuilder<'_> {
             }
             None => x,
         };
-        self.ha(&b.ha2, &b.bn2, View::new(&y, 0)?, (b.cout, ho, wo), b.cout, 1, GateTail::Residual(res), dst)
+        self.ha(
+            &b.ha2,
+            &b.bn2,
+            View::new(&y, 0)?,
+            (b.cout, ho, wo),
+            b.cout,
+            1,
+            GateTail::Residual(res),
+            dst,
+        )
     }
 
     /// ReverseBlock: `relu(conv(relu(up4(x))) + up2(x))` into `dst` ([cout, 2h, 2w]).
-    fn reverse(&mut self, r: &ReverseWeights, x: View<'_>, h: u32, w: u32, dst: View<'_>) -> Result<()> {
+    fn reverse(
+        &mut self,
+        r: &ReverseWeights,
+        x: View<'_>,
+        h: u32,
+        w: u32,
+        dst: View<'_>,
+    ) -> Result<()> {
         let (ctx, p) = (self.ctx, self.precision);
         let n = u64::from(r.cout) * u64::from(4 * h * w);
         self.fits(n, "ReverseBlock scratch")?;
         let s = &self.s;
-        let up4 = ConvShape { cin: r.cin, h, w, cout: r.cout, k: 4, stride: 2, pad: 1 };
-        let up2 = ConvShape { k: 2, pad: 0, ..up4 };
-        let conv = ConvShape { cin: r.cout, h: 2 * h, w: 2 * w, cout: r.cout, k: 3, stride: 1, pad: 1 };
+        let up4 = ConvShape {
+            cin: r.cin,
+            h,
+            w,
+            cout: r.cout,
+            k: 4,
+            stride: 2,
+            pad: 1,
+        };
+        let up2 = ConvShape {
+            k: 2,
+            pad: 0,
+            ..up4
+        };
+        let conv = ConvShape {
+            cin: r.cout,
+            h: 2 * h,
+            w: 2 * w,
+            cout: r.cout,
+            k: 3,
+            stride: 1,
+            pad: 1,
+        };
         let mut d = vec![
-            ops::conv_transpose2d(ctx, p, x, &r.up4.0.buffer, Some(&r.up4.1.buffer), View::new(&s.a.buffer, 0)?, up4, true)?,
+            ops::conv_transpose2d(
+                ctx,
+                p,
+                x,
+                &r.up4.0.buffer,
+                Some(&r.up4.1.buffer),
+                View::new(&s.a.buffer, 0)?,
+                up4,
+                true,
+            )?,
             ops::conv2d(
                 ctx,
                 p,
@@ -227,7 +321,16 @@ impl UnetBuilder<'_> {
                 conv,
                 Act::None,
             )?,
-            ops::conv_transpose2d(ctx, p, x, &r.up2.0.buffer, Some(&r.up2.1.buffer), View::new(&s.c.buffer, 0)?, up2, false)?,
+            ops::conv_transpose2d(
+                ctx,
+                p,
+                x,
+                &r.up2.0.buffer,
+                Some(&r.up2.1.buffer),
+                View::new(&s.c.buffer, 0)?,
+                up2,
+                false,
+            )?,
             ops::elementwise(
                 ctx,
                 p,
@@ -248,8 +351,15 @@ fn v(buf: &DeviceBuffer, base: u64) -> Result<View<'_>> {
 
 impl GpuNetwork {
     /// Uploads `weights` to the caller's device. `Precision::F16` needs `SHADER_F16`.
-    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, weights: &Weights, precision: Precision) -> Result<Self> {
-        let ctx = GpuContext::new(device, queue)?;
+    /// `adapter_type` (from `Adapter::get_info().device_type`) selects kernel variants.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_type: wgpu::DeviceType,
+        weights: &Weights,
+        precision: Precision,
+    ) -> Result<Self> {
+        let ctx = GpuContext::new(device, queue, adapter_type)?;
         ctx.check_precision(precision)?;
         let unet = weights::upload_unet(&ctx, weights, precision)?;
         let render = weights::upload_render(&ctx, weights, precision)?;
@@ -266,6 +376,65 @@ impl GpuNetwork {
     /// The device context (pipelines, queue).
     pub fn context(&self) -> &GpuContext {
         &self.ctx
+    }
+
+    /// Multiply-adds of one `estimate` on an `h x w` image (after padding to multiples of 8),
+    /// counting every convolution tap as the CPU and torch do.
+    pub fn estimate_macs(&self, h: usize, w: usize) -> u64 {
+        let u = &self.unet;
+        let hw = (h.next_multiple_of(UNET_MULTIPLE) * w.next_multiple_of(UNET_MULTIPLE)) as u64;
+        let c = u64::from(u.width);
+        let ha = |cin: u64, cout: u64, hw_in: u64, hw_out: u64| {
+            9 * (2 * cout * cin * hw_out
+                + cout * cin * hw_in
+                + (cout / 2) * cout * hw_out
+                + (cout - cout / 2) * cin * hw_out)
+        };
+        let basic = |b: &BasicWeights, hw_in: u64| {
+            let (cin, cout) = (u64::from(b.cin), u64::from(b.cout));
+            let hw_out = hw_in / u64::from(b.stride * b.stride);
+            ha(cin, cout, hw_in, hw_out)
+                + ha(cout, cout, hw_out, hw_out)
+                + b.down.as_ref().map_or(0, |_| cout * cin * hw_out)
+        };
+        let reverse = |r: &ReverseWeights, hw_in: u64| {
+            let (cin, cout) = (u64::from(r.cin), u64::from(r.cout));
+            16 * cin * cout * hw_in + 9 * cout * cout * 4 * hw_in + 4 * cin * cout * hw_in
+        };
+        let mut macs = 49 * hw * c * (u64::from(u.in_channels) + u64::from(u.param_channels));
+        let mut level = hw;
+        for stage in &u.enc {
+            macs += basic(&stage[0], level);
+            level /= u64::from(stage[0].stride * stage[0].stride);
+            macs += basic(&stage[1], level);
+        }
+        for (r, b) in u.dec_reverse.iter().zip(&u.dec_basic) {
+            macs += reverse(r, level);
+            level *= 4;
+            macs += basic(b, level);
+        }
+        macs + basic(&u.dec4[0], hw) + basic(&u.dec4[1], hw)
+    }
+
+    /// Multiply-adds of `M_render` per query as stored in the file (l0 and l1 unfolded),
+    /// the convention of DESIGN §4 (634,470 for the standard widths).
+    pub fn render_macs_per_query(&self) -> u64 {
+        let r = &self.render;
+        let nd: u64 =
+            r.nd.iter()
+                .map(|l| u64::from(l.out) * u64::from(l.inp))
+                .sum();
+        // The folded l0·l1 [out, in] stands for l0 [l0_out, in] and l1 [out, l0_out].
+        let unfolded: u64 = r.mlp.first().map_or(0, |l| {
+            u64::from(r.l0_out) * (u64::from(l.inp) + u64::from(l.out))
+        });
+        let rest: u64 = r
+            .mlp
+            .iter()
+            .skip(1)
+            .map(|l| u64::from(l.out) * u64::from(l.inp))
+            .sum();
+        nd + unfolded + rest
     }
 
     /// Storage precision of this network.
@@ -318,7 +487,15 @@ impl GpuNetwork {
             None,
             None,
             v(&stem_out, 0)?,
-            ConvShape { cin: u.in_channels, h, w, cout: c, k: 7, stride: 1, pad: 3 },
+            ConvShape {
+                cin: u.in_channels,
+                h,
+                w,
+                cout: c,
+                k: 7,
+                stride: 1,
+                pad: 3,
+            },
             Act::None,
         )?);
         // Encoder: stage k writes its output where the decoder concatenation needs it.
@@ -338,10 +515,22 @@ impl GpuNetwork {
             x = skip;
         }
         let n4 = to_u32(8 * c64 * hw / 64, "elements")?;
-        b.out.push(ops::elementwise(ctx, p, Elementwise::Atan, v(&e4, 0)?, v(&bott, 0)?, n4)?);
+        b.out.push(ops::elementwise(
+            ctx,
+            p,
+            Elementwise::Atan,
+            v(&e4, 0)?,
+            v(&bott, 0)?,
+            n4,
+        )?);
         // Decoder stages 1..3: ReverseBlock (x2) then BasicBlock into the next concat buffer.
         let mut x = v(&bott, 0)?;
-        for ((r, bb), dst) in u.dec_reverse.iter().zip(&u.dec_basic).zip([&cat2, &cat3, &cat4]) {
+        for ((r, bb), dst) in u
+            .dec_reverse
+            .iter()
+            .zip(&u.dec_basic)
+            .zip([&cat2, &cat3, &cat4])
+        {
             b.reverse(r, x, ch, cw, v(&mid, 0)?)?;
             ch *= 2;
             cw *= 2;
@@ -358,7 +547,15 @@ impl GpuNetwork {
             None,
             None,
             v(&output, 0)?,
-            ConvShape { cin: c, h, w, cout: u.param_channels, k: 7, stride: 1, pad: 3 },
+            ConvShape {
+                cin: c,
+                h,
+                w,
+                cout: u.param_channels,
+                k: 7,
+                stride: 1,
+                pad: 3,
+            },
             Act::None,
         )?);
         Ok(EstimatePlan {
@@ -406,10 +603,13 @@ impl GpuNetwork {
             let plan = self.build_estimate_plan(key.0, key.1)?;
             self.estimate_plans.insert(key, plan);
         }
-        let plan = self.estimate_plans.get(&key).ok_or_else(|| GpuError::Size {
-            what: "plan",
-            reason: "estimate plan missing after build".into(),
-        })?;
+        let plan = self
+            .estimate_plans
+            .get(&key)
+            .ok_or_else(|| GpuError::Size {
+                what: "plan",
+                reason: "estimate plan missing after build".into(),
+            })?;
         let mut padded = vec![0.0f32; cin * hp * wp];
         for c in 0..cin {
             for y in 0..hp {
@@ -440,13 +640,12 @@ impl GpuNetwork {
         let n = u64::from(rows);
         let nd_out = r.nd.last().map_or(0, |l| l.out);
         let cat_w = r.param_channels + nd_out;
-        let widest = r
-            .nd
-            .iter()
-            .chain(&r.mlp)
-            .map(|l| l.out.max(l.inp))
-            .max()
-            .unwrap_or(1);
+        let widest =
+            r.nd.iter()
+                .chain(&r.mlp)
+                .map(|l| l.out.max(l.inp))
+                .max()
+                .unwrap_or(1);
         let dirs = ctx.storage("dirs", 9 * n, Precision::F32)?;
         let enc = ctx.storage("encoding", u64::from(r.encoding) * n, p)?;
         let cat = ctx.storage("params|nd", u64::from(cat_w) * n, p)?;
@@ -456,34 +655,90 @@ impl GpuNetwork {
         ];
         let out_w = r.mlp.last().map_or(0, |l| l.out);
         let out = ctx.storage("radiance log", u64::from(out_w) * n, p)?;
-        let mut d = vec![ops::pos_enc(ctx, p, &dirs.buffer, rows, r.octaves, View::new(&enc.buffer, 0)?, r.encoding)?];
+        let mut d = vec![ops::pos_enc(
+            ctx,
+            p,
+            &dirs.buffer,
+            rows,
+            r.octaves,
+            View::new(&enc.buffer, 0)?,
+            r.encoding,
+        )?];
         let act = |s: Option<f32>| s.map_or(Act::None, Act::Leaky);
-        let mut x = Rows { view: View::new(&enc.buffer, 0)?, stride: r.encoding };
+        let mut x = Rows {
+            view: View::new(&enc.buffer, 0)?,
+            stride: r.encoding,
+        };
         for (i, l) in r.nd.iter().enumerate() {
             let y = if i + 1 == r.nd.len() {
-                Rows { view: View::new(&cat.buffer, u64::from(r.param_channels))?, stride: cat_w }
+                Rows {
+                    view: View::new(&cat.buffer, u64::from(r.param_channels))?,
+                    stride: cat_w,
+                }
             } else {
-                Rows { view: View::new(&ping[i % 2].buffer, 0)?, stride: l.out }
+                Rows {
+                    view: View::new(&ping[i % 2].buffer, 0)?,
+                    stride: l.out,
+                }
             };
-            d.push(ops::matmul(ctx, p, x, &l.weight.buffer, y, rows, l.out, l.inp, act(l.slope))?);
+            d.push(ops::matmul(
+                ctx,
+                p,
+                x,
+                &l.weight.buffer,
+                y,
+                rows,
+                l.out,
+                l.inp,
+                act(l.slope),
+            )?);
             x = y;
         }
-        let mut x = Rows { view: View::new(&cat.buffer, 0)?, stride: cat_w };
+        let mut x = Rows {
+            view: View::new(&cat.buffer, 0)?,
+            stride: cat_w,
+        };
         for (i, l) in r.mlp.iter().enumerate() {
             let y = if i + 1 == r.mlp.len() {
-                Rows { view: View::new(&out.buffer, 0)?, stride: l.out }
+                Rows {
+                    view: View::new(&out.buffer, 0)?,
+                    stride: l.out,
+                }
             } else {
-                Rows { view: View::new(&ping[i % 2].buffer, 0)?, stride: l.out }
+                Rows {
+                    view: View::new(&ping[i % 2].buffer, 0)?,
+                    stride: l.out,
+                }
             };
-            d.push(ops::matmul(ctx, p, x, &l.weight.buffer, y, rows, l.out, l.inp, act(l.slope))?);
+            d.push(ops::matmul(
+                ctx,
+                p,
+                x,
+                &l.weight.buffer,
+                y,
+                rows,
+                l.out,
+                l.inp,
+                act(l.slope),
+            )?);
             x = y;
         }
-        Ok(RenderPlan { dirs, cat, out, dispatches: d })
+        Ok(RenderPlan {
+            dirs,
+            cat,
+            out,
+            dispatches: d,
+        })
     }
 
     /// Runs `M_render` in chunks; returns (log-space output `[n, 3]`, ND_enc output `[n, 32]`
     /// when `want_nd`).
-    fn run_render(&mut self, params: &[f32], dirs: &[f32], want_nd: bool) -> Result<(Vec<f32>, Vec<f32>)> {
+    fn run_render(
+        &mut self,
+        params: &[f32],
+        dirs: &[f32],
+        want_nd: bool,
+    ) -> Result<(Vec<f32>, Vec<f32>)> {
         let pc = self.render.param_channels as usize;
         if dirs.len() % 9 != 0 {
             return Err(GpuError::InputLength {
@@ -529,7 +784,8 @@ impl GpuNetwork {
                 dst[..pc].copy_from_slice(src);
             }
             self.ctx.write(&plan.cat, 0, &cat)?;
-            self.ctx.write(&plan.dirs, 0, &dirs[start * 9..(start + rows) * 9])?;
+            self.ctx
+                .write(&plan.dirs, 0, &dirs[start * 9..(start + rows) * 9])?;
             self.ctx.run(&plan.dispatches)?;
             log.extend(self.ctx.read(&plan.out, (rows * out_w) as u64)?);
             if want_nd {
@@ -558,7 +814,11 @@ impl GpuNetwork {
     }
 
     /// Log-space output `[N, 3]` and the ND_enc output `[N, 32]` (for parity checks).
-    pub fn render_log_with_nd(&mut self, params: &[f32], dirs: &[f32]) -> Result<(Vec<f32>, Vec<f32>)> {
+    pub fn render_log_with_nd(
+        &mut self,
+        params: &[f32],
+        dirs: &[f32],
+    ) -> Result<(Vec<f32>, Vec<f32>)> {
         self.run_render(params, dirs, true)
     }
 }

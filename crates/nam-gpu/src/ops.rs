@@ -2,7 +2,7 @@
 //! Tensors are NCHW with batch 1, addressed as (buffer, element offset) views so that
 //! concatenations are channel offsets into one buffer.
 
-use crate::context::{Dispatch, GpuContext, PipelineKey, groups_1d, linear_groups};
+use crate::context::{Dispatch, GpuContext, MatmulVariant, PipelineKey, groups_1d, linear_groups};
 use crate::error::{GpuError, Result};
 use crate::shaders::{Family, Precision};
 
@@ -24,7 +24,13 @@ impl<'a> View<'a> {
 }
 
 /// Activation fused into a kernel's epilogue (codes match the shaders).
-#[cfg_attr(not(test), allow(dead_code, reason = "standalone kernel variant, exercised by the kernel tests"))]
+#[cfg_attr(
+    not(test),
+    allow(
+        dead_code,
+        reason = "standalone kernel variant, exercised by the kernel tests"
+    )
+)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum Act {
     None,
@@ -93,8 +99,22 @@ pub(crate) fn conv2d(
     let flags = u32::from(bias.is_some()) | (u32::from(norm.is_some()) << 1);
     let (act_code, slope) = act.code();
     let words = [
-        s.cin, s.h, s.w, s.cout, ho, wo, s.stride, s.pad, src.base, dst.base, flags, act_code,
-        f(slope), 0, 0, 0,
+        s.cin,
+        s.h,
+        s.w,
+        s.cout,
+        ho,
+        wo,
+        s.stride,
+        s.pad,
+        src.base,
+        dst.base,
+        flags,
+        act_code,
+        f(slope),
+        0,
+        0,
+        0,
     ];
     let key = PipelineKey {
         family: Family::Conv2d,
@@ -193,7 +213,13 @@ pub(crate) fn instance_norm_stats(
     )
 }
 
-#[cfg_attr(not(test), allow(dead_code, reason = "standalone kernel variant, exercised by the kernel tests"))]
+#[cfg_attr(
+    not(test),
+    allow(
+        dead_code,
+        reason = "standalone kernel variant, exercised by the kernel tests"
+    )
+)]
 /// `dst = src * norm[2c] + norm[2c + 1]` with statistics from [`instance_norm_stats`].
 pub(crate) fn instance_norm_apply(
     ctx: &GpuContext,
@@ -220,7 +246,13 @@ pub(crate) fn instance_norm_apply(
 }
 
 /// Block tail after an HA-Conv: see `shaders/ha_gate.wgsl`.
-#[cfg_attr(not(test), allow(dead_code, reason = "standalone kernel variant, exercised by the kernel tests"))]
+#[cfg_attr(
+    not(test),
+    allow(
+        dead_code,
+        reason = "standalone kernel variant, exercised by the kernel tests"
+    )
+)]
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum GateTail<'a> {
     /// `y`
@@ -276,7 +308,13 @@ pub(crate) fn ha_gate(
 }
 
 /// Elementwise entry points of `shaders/elementwise.wgsl`.
-#[cfg_attr(not(test), allow(dead_code, reason = "standalone kernel variant, exercised by the kernel tests"))]
+#[cfg_attr(
+    not(test),
+    allow(
+        dead_code,
+        reason = "standalone kernel variant, exercised by the kernel tests"
+    )
+)]
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum Elementwise<'a> {
     /// Per-channel `x * ab[2c] + ab[2c + 1]` with `hw` elements per channel.
@@ -373,10 +411,38 @@ pub(crate) struct Rows<'a> {
     pub stride: u32,
 }
 
-/// `y[m, n] = act(sum_k x[m, k] * w[n, k])` for `m < rows`, `n < cols`, `k < inner`.
+/// `y[m, n] = act(sum_k x[m, k] * w[n, k])` with the context's matmul variant.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn matmul(
     ctx: &GpuContext,
+    precision: Precision,
+    x: Rows<'_>,
+    w: &wgpu::Buffer,
+    y: Rows<'_>,
+    rows: u32,
+    cols: u32,
+    inner: u32,
+    act: Act,
+) -> Result<Dispatch> {
+    matmul_as(
+        ctx,
+        ctx.matmul_variant(),
+        precision,
+        x,
+        w,
+        y,
+        rows,
+        cols,
+        inner,
+        act,
+    )
+}
+
+/// `y[m, n] = act(sum_k x[m, k] * w[n, k])` for `m < rows`, `n < cols`, `k < inner`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn matmul_as(
+    ctx: &GpuContext,
+    variant: MatmulVariant,
     precision: Precision,
     x: Rows<'_>,
     w: &wgpu::Buffer,
@@ -401,9 +467,13 @@ pub(crate) fn matmul(
         0,
         0,
     ];
+    let (entry, row_tile) = match variant {
+        MatmulVariant::Tiled => ("matmul", 64),
+        MatmulVariant::Direct => ("matmul_direct", 4),
+    };
     let key = PipelineKey {
         family: Family::Matmul,
-        entry: "matmul",
+        entry,
         precision,
         constants: vec![],
     };
@@ -411,6 +481,6 @@ pub(crate) fn matmul(
         &key,
         Some(&words),
         &[x.view.buf, w, y.view.buf],
-        [groups_1d(cols, 64)?, groups_1d(rows, 64)?, 1],
+        [groups_1d(cols, 64)?, groups_1d(rows, row_tile)?, 1],
     )
 }

@@ -32,7 +32,12 @@ pub fn fma_peak_gflops(ctx: &GpuContext, groups: u32, iters: u32, reps: u32) -> 
         precision: Precision::F32,
         constants: vec![],
     };
-    let d = ctx.dispatch(&key, Some(&[iters, 1.0f32.to_bits(), 0, 0]), &[&out.buffer], [groups, 1, 1])?;
+    let d = ctx.dispatch(
+        &key,
+        Some(&[iters, 1.0f32.to_bits(), 0, 0]),
+        &[&out.buffer],
+        [groups, 1, 1],
+    )?;
     ctx.run(std::slice::from_ref(&d))?;
     ctx.wait()?;
     let flops = f64::from(groups) * 256.0 * f64::from(iters) * 64.0;
@@ -46,4 +51,48 @@ pub fn fma_peak_gflops(ctx: &GpuContext, groups: u32, iters: u32, reps: u32) -> 
     // Keep the result observable so the kernel cannot be elided.
     let _ = ctx.read(&out, 1)?;
     Ok(flops / best / 1e9)
+}
+
+/// Measures the tiled matmul kernel (`shaders/matmul.wgsl`, f32, LeakyReLU epilogue) on a
+/// `rows x inner` by `inner x cols` product. Returns GFLOP/s (2 flops per multiply-add) of
+/// the best of `reps` timed runs after one warm-up.
+pub fn matmul_gflops(ctx: &GpuContext, rows: u32, cols: u32, inner: u32, reps: u32) -> Result<f64> {
+    let p = Precision::F32;
+    let x: Vec<f32> = (0..rows as usize * inner as usize)
+        .map(|i| (i % 7) as f32 * 0.1)
+        .collect();
+    let w: Vec<f32> = (0..cols as usize * inner as usize)
+        .map(|i| (i % 5) as f32 * 0.1)
+        .collect();
+    let xb = ctx.upload("matmul x", &x, p)?;
+    let wb = ctx.upload("matmul w", &w, p)?;
+    let yb = ctx.storage("matmul y", u64::from(rows) * u64::from(cols), p)?;
+    let d = crate::ops::matmul(
+        ctx,
+        p,
+        crate::ops::Rows {
+            view: crate::ops::View::new(&xb.buffer, 0)?,
+            stride: inner,
+        },
+        &wb.buffer,
+        crate::ops::Rows {
+            view: crate::ops::View::new(&yb.buffer, 0)?,
+            stride: cols,
+        },
+        rows,
+        cols,
+        inner,
+        crate::ops::Act::Leaky(0.01),
+    )?;
+    ctx.run(std::slice::from_ref(&d))?;
+    ctx.wait()?;
+    let mut best = f64::INFINITY;
+    for _ in 0..reps.max(1) {
+        let t = Instant::now();
+        ctx.run(std::slice::from_ref(&d))?;
+        ctx.wait()?;
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    let _ = ctx.read(&yb, 1)?;
+    Ok(2.0 * f64::from(rows) * f64::from(cols) * f64::from(inner) / best / 1e9)
 }

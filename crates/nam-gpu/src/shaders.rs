@@ -180,7 +180,12 @@ mod tests {
     fn precision_generic_shaders_declare_the_storage_alias_once() {
         for family in Family::ALL.into_iter().filter(|f| f.has_f16()) {
             let n = family.base_source().matches(STORAGE_ALIAS_F32).count();
-            assert_eq!(n, 1, "{} declares `{STORAGE_ALIAS_F32}` {n} times", family.file_name());
+            assert_eq!(
+                n,
+                1,
+                "{} declares `{STORAGE_ALIAS_F32}` {n} times",
+                family.file_name()
+            );
             let f16 = family.source(Precision::F16).unwrap_or_default();
             assert!(f16.contains("alias st = f16;") && !f16.contains(STORAGE_ALIAS_F32));
         }
@@ -193,8 +198,17 @@ mod tests {
             let declared = src.matches("@binding(").count();
             assert_eq!(declared, family.bindings().len(), "{}", family.file_name());
             let read_write = src.matches("read_write>").count();
-            let expected = family.bindings().iter().filter(|b| **b == Binding::ReadWrite).count();
-            assert_eq!(read_write, expected, "{} read_write bindings", family.file_name());
+            let expected = family
+                .bindings()
+                .iter()
+                .filter(|b| **b == Binding::ReadWrite)
+                .count();
+            assert_eq!(
+                read_write,
+                expected,
+                "{} read_write bindings",
+                family.file_name()
+            );
         }
     }
 }

@@ -73,6 +73,8 @@ pub(crate) struct RenderWeights {
     pub param_channels: u32,
     pub nd: Vec<Linear>,
     pub mlp: Vec<Linear>,
+    /// Width between the folded l0 and l1 (for FLOP accounting).
+    pub l0_out: u32,
 }
 
 fn u(v: usize, what: &'static str) -> Result<u32> {
@@ -97,7 +99,11 @@ impl Uploader<'_> {
     fn affine(&self, s: &Scope<'_>, name: &str, n: usize) -> Result<DeviceBuffer> {
         let scale = s.get(&format!("{name}.scale"), &[n])?;
         let shift = s.get(&format!("{name}.shift"), &[n])?;
-        let ab: Vec<f32> = scale.iter().zip(shift).flat_map(|(&a, &b)| [a, b]).collect();
+        let ab: Vec<f32> = scale
+            .iter()
+            .zip(shift)
+            .flat_map(|(&a, &b)| [a, b])
+            .collect();
         self.ctx
             .upload(&format!("{}.{name}", s.prefix()), &ab, self.precision)
     }
@@ -154,7 +160,11 @@ impl Uploader<'_> {
 }
 
 /// Uploads the U-Net (DESIGN §4, FORMAT.md tensor names).
-pub(crate) fn upload_unet(ctx: &GpuContext, weights: &Weights, precision: Precision) -> Result<UnetWeights> {
+pub(crate) fn upload_unet(
+    ctx: &GpuContext,
+    weights: &Weights,
+    precision: Precision,
+) -> Result<UnetWeights> {
     let cfg = weights.config();
     let c = cfg.width;
     let up = Uploader { ctx, precision };
@@ -200,7 +210,11 @@ pub(crate) fn upload_unet(ctx: &GpuContext, weights: &Weights, precision: Precis
 
 /// Uploads `M_render`, folding `render.l1 · render.l0` (no activation between them) into one
 /// matrix in f64.
-pub(crate) fn upload_render(ctx: &GpuContext, weights: &Weights, precision: Precision) -> Result<RenderWeights> {
+pub(crate) fn upload_render(
+    ctx: &GpuContext,
+    weights: &Weights,
+    precision: Precision,
+) -> Result<RenderWeights> {
     let cfg = weights.config();
     let up = Uploader { ctx, precision };
     let nd_scope = weights.scope("nd_enc");
@@ -261,5 +275,6 @@ pub(crate) fn upload_render(ctx: &GpuContext, weights: &Weights, precision: Prec
         param_channels: u(cfg.param_channels, "param_channels")?,
         nd,
         mlp,
+        l0_out: u(r[1], "width")?,
     })
 }

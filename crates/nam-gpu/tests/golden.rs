@@ -25,7 +25,9 @@ const RENDER_F32_TOL: f32 = 5e-5;
 const RENDER_F16_TOL: f32 = 1e-2;
 
 fn fixture(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/fixtures")
+        .join(name)
 }
 
 fn gpu() -> Option<&'static Mutex<DeviceHandles>> {
@@ -39,12 +41,16 @@ fn gpu() -> Option<&'static Mutex<DeviceHandles>> {
 
 fn load() -> (Weights, TensorFile) {
     let w = Weights::from_file(fixture("net_tiny.safetensors")).unwrap_or_else(|e| panic!("{e}"));
-    let g = TensorFile::from_file(fixture("net_tiny_golden.safetensors")).unwrap_or_else(|e| panic!("{e}"));
+    let g = TensorFile::from_file(fixture("net_tiny_golden.safetensors"))
+        .unwrap_or_else(|e| panic!("{e}"));
     (w, g)
 }
 
 fn tensor<'a>(g: &'a TensorFile, name: &str) -> (&'a [f32], Vec<usize>) {
-    let t = g.tensors().get(name).unwrap_or_else(|| panic!("golden lacks {name}"));
+    let t = g
+        .tensors()
+        .get(name)
+        .unwrap_or_else(|| panic!("golden lacks {name}"));
     (t.data(), t.shape().to_vec())
 }
 
@@ -52,7 +58,11 @@ fn tensor<'a>(g: &'a TensorFile, name: &str) -> (&'a [f32], Vec<usize>) {
 fn rel_err(got: &[f32], want: &[f32]) -> f32 {
     assert_eq!(got.len(), want.len());
     let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
-    got.iter().zip(want).map(|(g, w)| (g - w).abs()).fold(0.0, f32::max) / scale
+    got.iter()
+        .zip(want)
+        .map(|(g, w)| (g - w).abs())
+        .fold(0.0, f32::max)
+        / scale
 }
 
 fn network(p: Precision, weights: &Weights) -> Option<GpuNetwork> {
@@ -61,12 +71,17 @@ fn network(p: Precision, weights: &Weights) -> Option<GpuNetwork> {
         eprintln!("SKIP f16: adapter {:?} lacks SHADER_F16", g.info.name);
         return None;
     }
-    Some(GpuNetwork::new(&g.device, &g.queue, weights, p).unwrap_or_else(|e| panic!("{e}")))
+    Some(
+        GpuNetwork::new(&g.device, &g.queue, g.info.device_type, weights, p)
+            .unwrap_or_else(|e| panic!("{e}")),
+    )
 }
 
 fn estimate_case(p: Precision, tol: f32, mean_tol: f32) {
     let (weights, golden) = load();
-    let Some(mut net) = network(p, &weights) else { return };
+    let Some(mut net) = network(p, &weights) else {
+        return;
+    };
     let (input, shape) = tensor(&golden, "input");
     let (h, w) = (shape[1], shape[2]);
     let got_hwc = net.estimate(input, h, w).unwrap_or_else(|e| panic!("{e}"));
@@ -78,24 +93,39 @@ fn estimate_case(p: Precision, tol: f32, mean_tol: f32) {
     }
     let err = rel_err(&got_chw, want_chw);
     let scale = want_chw.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-    let mean = got_chw.iter().zip(want_chw).map(|(g, w)| (g - w).abs()).sum::<f32>() / got_chw.len() as f32;
+    let mean = got_chw
+        .iter()
+        .zip(want_chw)
+        .map(|(g, w)| (g - w).abs())
+        .sum::<f32>()
+        / got_chw.len() as f32;
     eprintln!("estimate {p:?}: max |params| {scale:.3}, mean abs error {mean:.3e}");
-    assert!(mean <= mean_tol * scale.max(1.0), "estimate {p:?}: mean error {mean} > {mean_tol} x {scale}");
+    assert!(
+        mean <= mean_tol * scale.max(1.0),
+        "estimate {p:?}: mean error {mean} > {mean_tol} x {scale}"
+    );
     eprintln!("estimate {p:?}: relative error {err:.3e} (tol {tol:.1e})");
     assert!(err <= tol, "estimate {p:?}: relative error {err} > {tol}");
 }
 
 fn render_case(p: Precision, tol: f32) {
     let (weights, golden) = load();
-    let Some(mut net) = network(p, &weights) else { return };
+    let Some(mut net) = network(p, &weights) else {
+        return;
+    };
     let (params, _) = tensor(&golden, "r_params");
     let (dirs, _) = tensor(&golden, "r_dirs");
-    let (log, nd) = net.render_log_with_nd(params, dirs).unwrap_or_else(|e| panic!("{e}"));
+    let (log, nd) = net
+        .render_log_with_nd(params, dirs)
+        .unwrap_or_else(|e| panic!("{e}"));
     let radiance = net.render(params, dirs).unwrap_or_else(|e| panic!("{e}"));
     for (name, got) in [("r_nd", &nd), ("r_log", &log), ("r_radiance", &radiance)] {
         let err = rel_err(got, tensor(&golden, name).0);
         eprintln!("render {p:?} {name}: relative error {err:.3e} (tol {tol:.1e})");
-        assert!(err <= tol, "render {p:?} {name}: relative error {err} > {tol}");
+        assert!(
+            err <= tol,
+            "render {p:?} {name}: relative error {err} > {tol}"
+        );
     }
 }
 
