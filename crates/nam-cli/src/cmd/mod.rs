@@ -1,0 +1,3 @@
+//! One module per subcommand: each has an `Args` (clap derive) and a `run(&Args)`.
+
+pub mod render_ggx;

@@ -1,0 +1,95 @@
+//! Writing result images: format by extension, atomic replacement.
+//!
+//! - `.png`: 8-bit, sRGB-encoded (IEC 61966-2-1) after clamping linear values to [0, 1].
+//! - `.exr`: linear f32 RGB, values as computed (HDR preserved).
+//!
+//! Files are written to a temporary file in the destination directory and renamed over the
+//! destination only when complete, so a failed or interrupted run never leaves a partial file.
+
+use anyhow::{Context, Result, bail};
+use nam_ggx::RgbImage;
+use nam_ggx::color::srgb_encode;
+use nam_ggx::imageio::{PngDepth, encode_exr, encode_png};
+use std::io::Write;
+use std::path::Path;
+
+/// Output image format, chosen by the file extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutputFormat {
+    /// 8-bit sRGB PNG (clamped).
+    Png,
+    /// Linear f32 OpenEXR.
+    Exr,
+}
+
+impl OutputFormat {
+    /// The format named by `path`'s extension (case-insensitive).
+    pub fn from_path(path: &Path) -> Result<Self> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("png") => Ok(Self::Png),
+            Some("exr") => Ok(Self::Exr),
+            _ => bail!(
+                "{}: output must end in .png (8-bit sRGB) or .exr (linear f32)",
+                path.display()
+            ),
+        }
+    }
+}
+
+/// Checks, before any expensive work, that `path` has a supported extension and that its
+/// directory exists. Returns the format.
+pub fn check_output_path(path: &Path) -> Result<OutputFormat> {
+    let format = OutputFormat::from_path(path)?;
+    let dir = parent_dir(path);
+    if !dir.is_dir() {
+        bail!(
+            "{}: output directory {} does not exist",
+            path.display(),
+            dir.display()
+        );
+    }
+    Ok(format)
+}
+
+/// Writes a linear RGB image (the renderer's radiance) to `path` atomically, encoded per
+/// [`OutputFormat`].
+pub fn write_linear_rgb(path: &Path, img: &RgbImage<f32>) -> Result<()> {
+    let bytes = match OutputFormat::from_path(path)? {
+        OutputFormat::Png => encode_png(&img.map(srgb_encode), PngDepth::Eight),
+        OutputFormat::Exr => encode_exr(img),
+    }
+    .with_context(|| format!("encoding {}", path.display()))?;
+    write_atomic(path, &bytes)
+}
+
+/// Writes `bytes` to `path` atomically: a temporary file in the same directory is filled,
+/// flushed to disk and renamed over `path`. On error the temporary file is removed.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = parent_dir(path);
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".nam-cli-")
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .with_context(|| format!("{}: cannot create a temporary file", dir.display()))?;
+    tmp.write_all(bytes)
+        .and_then(|()| tmp.as_file().sync_all())
+        .with_context(|| format!("{}: write failed", path.display()))?;
+    tmp.persist(path).map_err(|e| e.error).with_context(|| {
+        format!(
+            "{}: cannot move the finished file into place",
+            path.display()
+        )
+    })?;
+    Ok(())
+}
+
+fn parent_dir(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}

@@ -1,0 +1,433 @@
+//! End-to-end tests of `nam-cli render-ggx`: run the real binary on good and bad inputs.
+
+use nam_ggx::color::srgb_encode;
+use nam_ggx::imageio::read_rgb;
+use nam_ggx::{GgxPoint, Light, RenderSettings, SvbrdfMaps, Vec3, View, render};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// One 8-bit code: the PNG output is quantised after sRGB encoding.
+const PNG_CODE_TOL: f32 = 1.0 / 255.0 + 1e-6;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_nam-cli"))
+}
+
+fn example_maps() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets/example_maps.png")
+}
+
+fn run(args: &[&str]) -> Output {
+    bin()
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run nam-cli: {e}"))
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap_or_else(|| panic!("non-UTF-8 temp path"))
+}
+
+/// A small glossy test material (16×16, 4-panel PNG).
+fn small_maps(dir: &Path) -> (PathBuf, SvbrdfMaps) {
+    let path = dir.join("maps.png");
+    let p = GgxPoint {
+        diffuse: [0.3, 0.2, 0.1],
+        specular: [0.04; 3],
+        roughness: 0.3,
+        normal: Vec3::up(),
+    };
+    let maps = SvbrdfMaps::uniform(16, 16, &p).unwrap_or_else(|e| panic!("{e}"));
+    maps.save(&path).unwrap_or_else(|e| panic!("{e}"));
+    // Reload so the comparison sees the same quantised values as the CLI.
+    let maps = SvbrdfMaps::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    (path, maps)
+}
+
+fn tmp() -> tempfile::TempDir {
+    tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn expect_failure(args: &[&str], out: &Path, needle: &str) {
+    let o = run(args);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "should fail: {args:?}");
+    assert!(err.contains(needle), "stderr lacks {needle:?}:\n{err}");
+    assert!(!out.exists(), "no output file may be left behind");
+    let dir = out.parent().unwrap_or_else(|| Path::new("."));
+    let leftovers: Vec<_> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+}
+
+#[test]
+fn renders_bundled_example_to_a_256_square_png() {
+    let d = tmp();
+    let out = d.path().join("out.png");
+    let o = run(&[
+        "render-ggx",
+        s(&example_maps()),
+        "--light",
+        "1,1,4",
+        "--view",
+        "0,0,4",
+        "-o",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((img.width(), img.height()), (256, 256));
+    let mean: f32 = img.data().iter().sum::<f32>() / img.data().len() as f32;
+    assert!(
+        mean > 0.2 && mean < 0.9,
+        "a lit material, not black or white: {mean}"
+    );
+}
+
+#[test]
+fn exr_output_is_the_linear_f32_library_render() {
+    let d = tmp();
+    let (maps_path, maps) = small_maps(d.path());
+    let out = d.path().join("out.exr");
+    let o = run(&[
+        "render-ggx",
+        s(&maps_path),
+        "--light",
+        "-1.5,0.5,3",
+        "--view",
+        "0.2,0,4",
+        "-o",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
+    let settings = RenderSettings::new(
+        Light::Point(Vec3::new(-1.5, 0.5, 3.0)),
+        View::Point(Vec3::new(0.2, 0.0, 4.0)),
+    );
+    let want = render::<f32>(&maps, &settings).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(
+        img.data(),
+        want.data(),
+        "EXR must hold the exact f32 radiance"
+    );
+}
+
+#[test]
+fn png_output_is_srgb_encoded_clamped_radiance() {
+    let d = tmp();
+    let (maps_path, maps) = small_maps(d.path());
+    let out = d.path().join("out.png");
+    let o = run(&[
+        "render-ggx",
+        s(&maps_path),
+        "--light",
+        "0,0,4.0108",
+        "--view",
+        "0,0,4.0108",
+        "--intensity",
+        "3",
+        "-o",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
+    let cam = Vec3::new(0.0, 0.0, 4.0108);
+    let settings = RenderSettings {
+        intensity: 3.0,
+        ..RenderSettings::new(Light::Point(cam), View::Point(cam))
+    };
+    let want = render::<f32>(&maps, &settings).unwrap_or_else(|e| panic!("{e}"));
+    let mut saw_clamp = false;
+    for (got, lin) in img.data().iter().zip(want.data()) {
+        saw_clamp |= *lin > 1.0;
+        let enc = srgb_encode(*lin);
+        assert!(
+            (got - enc).abs() <= PNG_CODE_TOL,
+            "{got} vs sRGB({lin}) = {enc}"
+        );
+    }
+    assert!(saw_clamp, "intensity 3 should saturate the highlight");
+}
+
+#[test]
+fn intensity_and_falloff_scale_the_exr() {
+    let d = tmp();
+    let (maps_path, _) = small_maps(d.path());
+    let a = d.path().join("a.exr");
+    let b = d.path().join("b.exr");
+    let base = [
+        "render-ggx",
+        s(&maps_path),
+        "--light",
+        "0,0,8.0216",
+        "--view",
+        "0,0,4",
+    ];
+    let o = run(&[&base[..], &["-o", s(&a)]].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = run(&[&base[..], &["--intensity", "2", "--falloff", "-o", s(&b)]].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (ia, _) = read_rgb(&a).unwrap_or_else(|e| panic!("{e}"));
+    let (ib, _) = read_rgb(&b).unwrap_or_else(|e| panic!("{e}"));
+    // Light at 2d above the centre: falloff ≈ 1/4 near the centre, times intensity 2.
+    let (x, y) = (ia.pixel(8, 8)[0], ib.pixel(8, 8)[0]);
+    assert!((y / x - 0.5).abs() < 0.01, "{y} / {x}");
+}
+
+#[test]
+fn malformed_vectors_fail_with_expected_xyz() {
+    let d = tmp();
+    let (maps_path, _) = small_maps(d.path());
+    let out = d.path().join("out.png");
+    for bad in ["1,2", "1,2,3,4", "a,b,c", "nan,0,4", "0,inf,4"] {
+        expect_failure(
+            &[
+                "render-ggx",
+                s(&maps_path),
+                "--light",
+                bad,
+                "--view",
+                "0,0,4",
+                "-o",
+                s(&out),
+            ],
+            &out,
+            "expected x,y,z",
+        );
+    }
+}
+
+#[test]
+fn light_or_view_below_the_surface_is_an_error() {
+    let d = tmp();
+    let (maps_path, _) = small_maps(d.path());
+    let out = d.path().join("out.png");
+    expect_failure(
+        &[
+            "render-ggx",
+            s(&maps_path),
+            "--light",
+            "1,1,-4",
+            "--view",
+            "0,0,4",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "--light must be above the surface (z > 0)",
+    );
+    expect_failure(
+        &[
+            "render-ggx",
+            s(&maps_path),
+            "--light",
+            "1,1,4",
+            "--view",
+            "0,0,0",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "--view must be above the surface (z > 0)",
+    );
+}
+
+#[test]
+fn negative_intensity_and_unknown_output_format_are_rejected() {
+    let d = tmp();
+    let (maps_path, _) = small_maps(d.path());
+    let out = d.path().join("out.png");
+    expect_failure(
+        &[
+            "render-ggx",
+            s(&maps_path),
+            "--light",
+            "1,1,4",
+            "--view",
+            "0,0,4",
+            "--intensity",
+            "-1",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "expected a finite number",
+    );
+    let jpg = d.path().join("out.jpg");
+    expect_failure(
+        &[
+            "render-ggx",
+            s(&maps_path),
+            "--light",
+            "1,1,4",
+            "--view",
+            "0,0,4",
+            "-o",
+            s(&jpg),
+        ],
+        &jpg,
+        "output must end in .png",
+    );
+}
+
+#[test]
+fn bad_map_files_fail_cleanly_without_output() {
+    let d = tmp();
+    let out = d.path().join("out.png");
+    let missing = d.path().join("missing.png");
+    expect_failure(
+        &[
+            "render-ggx",
+            s(&missing),
+            "--light",
+            "1,1,4",
+            "--view",
+            "0,0,4",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "missing.png",
+    );
+    let (good, _) = small_maps(d.path());
+    let bytes = std::fs::read(&good).unwrap_or_else(|e| panic!("{e}"));
+    let cut = d.path().join("cut.png");
+    std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap_or_else(|e| panic!("{e}"));
+    expect_failure(
+        &[
+            "render-ggx",
+            s(&cut),
+            "--light",
+            "1,1,4",
+            "--view",
+            "0,0,4",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "cannot decode image",
+    );
+    // A plain 16×16 image is not a 4-panel file.
+    let square = d.path().join("square.exr");
+    let img = nam_ggx::RgbImage::<f32>::zeros(16, 16).unwrap_or_else(|e| panic!("{e}"));
+    nam_ggx::imageio::write_rgb(&square, &img, nam_ggx::imageio::PngDepth::Eight)
+        .unwrap_or_else(|e| panic!("{e}"));
+    expect_failure(
+        &[
+            "render-ggx",
+            s(&square),
+            "--light",
+            "1,1,4",
+            "--view",
+            "0,0,4",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "must be 4·H wide",
+    );
+}
+
+#[test]
+fn failed_run_leaves_an_existing_output_untouched() {
+    let d = tmp();
+    let (maps_path, _) = small_maps(d.path());
+    let out = d.path().join("keep.png");
+    let o = run(&[
+        "render-ggx",
+        s(&maps_path),
+        "--light",
+        "1,1,4",
+        "--view",
+        "0,0,4",
+        "-o",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let before = std::fs::read(&out).unwrap_or_else(|e| panic!("{e}"));
+    let bad = d.path().join("bad.png");
+    std::fs::write(&bad, b"\x89PNG\r\n\x1a\n garbage").unwrap_or_else(|e| panic!("{e}"));
+    let o = run(&[
+        "render-ggx",
+        s(&bad),
+        "--light",
+        "1,1,4",
+        "--view",
+        "0,0,4",
+        "-o",
+        s(&out),
+    ]);
+    assert!(!o.status.success());
+    let after = std::fs::read(&out).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(before, after);
+}
+
+#[test]
+fn output_into_missing_directory_fails_before_rendering() {
+    let d = tmp();
+    let (maps_path, _) = small_maps(d.path());
+    let out = d.path().join("no/such/dir/out.png");
+    expect_failure(
+        &[
+            "render-ggx",
+            s(&maps_path),
+            "--light",
+            "1,1,4",
+            "--view",
+            "0,0,4",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "does not exist",
+    );
+}
+
+#[test]
+fn help_lists_examples_and_conventions() {
+    let o = run(&["render-ggx", "--help"]);
+    assert!(o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("Examples:") && text.contains("--light 1,1,4"),
+        "{text}"
+    );
+    assert!(text.contains("4·H wide"), "{text}");
+}
+
+#[test]
+fn directional_light_and_orthographic_view_give_a_uniform_image_on_uniform_maps() {
+    let d = tmp();
+    let (maps_path, _) = small_maps(d.path());
+    let out = d.path().join("ortho.exr");
+    let o = run(&[
+        "render-ggx",
+        s(&maps_path),
+        "--light",
+        "1,0,1",
+        "--directional-light",
+        "--view",
+        "0,0,1",
+        "--orthographic",
+        "-o",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
+    let first = img.pixel(0, 0);
+    assert!(first[0] > 0.0);
+    for i in 0..img.height() {
+        for j in 0..img.width() {
+            assert_eq!(img.pixel(i, j), first, "same directions at every pixel");
+        }
+    }
+}
