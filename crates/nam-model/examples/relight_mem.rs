@@ -40,7 +40,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let sg = nam_model::sgemm_gflops(1024, 5);
         // 2 · (634,470 − 16,384 folded) MAC per pixel.
         let gf = 2.0 * 618_086.0 * (n * n) as f64 / (ms / 1e3) / 1e9;
-        println!("relight {gf:.1} GFLOP/s; sgemm 1024³ {sg:.1} GFLOP/s; ratio {:.0}%", 100.0 * gf / sg);
+        println!(
+            "relight {gf:.1} GFLOP/s; sgemm 1024³ {sg:.1} GFLOP/s; ratio {:.0}%",
+            100.0 * gf / sg
+        );
     }
     Ok(())
 }

@@ -16,6 +16,17 @@ pub enum ModelError {
         /// Length passed.
         found: usize,
     },
+    /// An input holds NaN or infinity (outputs would be NaN).
+    #[error("{what}: non-finite value at flat index {index}")]
+    NonFinite {
+        /// Which argument.
+        what: &'static str,
+        /// Flat index of the first offending value.
+        index: usize,
+    },
+    /// A light or view position at or below the surface plane z = 0.
+    #[error("light and view must be above the surface (z > 0)")]
+    BelowSurface,
     /// An image dimension is zero or too large.
     #[error("invalid image size {height}×{width}: {reason}")]
     ImageSize {
@@ -40,5 +51,12 @@ pub(crate) fn check_len(what: &'static str, expected: usize, found: usize) -> Re
             expected,
             found,
         })
+    }
+}
+
+pub(crate) fn check_finite(what: &'static str, v: &[f32]) -> Result<()> {
+    match v.iter().position(|x| !x.is_finite()) {
+        None => Ok(()),
+        Some(index) => Err(ModelError::NonFinite { what, index }),
     }
 }

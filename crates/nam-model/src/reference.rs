@@ -7,7 +7,7 @@
 use nam_weights::{Scope, Weights};
 
 use crate::encoding::{direction_triple, encode_f64, encode_into};
-use crate::error::{Result, check_len};
+use crate::error::{Result, check_finite, check_len};
 use crate::render::ParamMap;
 use crate::unet::{check_image, pad_multiple};
 
@@ -303,6 +303,7 @@ fn estimate_impl<A: Acc>(
         cfg.in_channels * height * width,
         input.len(),
     )?;
+    check_finite("network input", input)?;
     let (hp, wp) = (pad_multiple(height), pad_multiple(width));
     let mut x = Chw::zeros(cfg.in_channels, hp, wp);
     for c in 0..cfg.in_channels {

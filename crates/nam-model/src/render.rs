@@ -7,7 +7,7 @@ use nam_weights::Weights;
 use rayon::prelude::*;
 
 use crate::encoding::{direction_triple, encode_into, encoded_len};
-use crate::error::{Result, check_len};
+use crate::error::{ModelError, Result, check_finite, check_len};
 use crate::geometry::{direction, pixel_position};
 use crate::sgemm::{Mat, sgemm};
 
@@ -369,6 +369,9 @@ impl RenderNet {
         check_len("params", n * self.params, params.len())?;
         check_len("wo", n, wo.len())?;
         check_len("log out", n * 3, out_log.len())?;
+        check_finite("params", params)?;
+        check_finite("wi", wi.as_flattened())?;
+        check_finite("wo", wo.as_flattened())?;
         let t = self.tile;
         out_log.par_chunks_mut(t * 3).enumerate().for_each_init(
             || self.scratch(t),
@@ -399,6 +402,8 @@ impl RenderNet {
         check_len("dirs", n * 9, dirs.len())?;
         check_len("params", n * self.params, params.len())?;
         check_len("log out", n * 3, out_log.len())?;
+        check_finite("params", params)?;
+        check_finite("dirs", dirs)?;
         let t = self.tile;
         out_log.par_chunks_mut(t * 3).enumerate().for_each_init(
             || self.scratch(t),
@@ -443,6 +448,12 @@ impl RenderNet {
         check_len("param map channels", self.params, map.channels)?;
         let n = map.height * map.width;
         check_len("param map", n * self.params, map.data.len())?;
+        check_finite("param map", &map.data)?;
+        check_finite("light", &light)?;
+        check_finite("view", &view)?;
+        if light[2] <= 0.0 || view[2] <= 0.0 {
+            return Err(ModelError::BelowSurface);
+        }
         let (h, w) = (map.height, map.width);
         let t = self.tile;
         let mut data = vec![0.0f32; n * 3];

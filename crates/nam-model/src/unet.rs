@@ -6,7 +6,7 @@
 use nam_weights::{Scope, Weights};
 use rayon::prelude::*;
 
-use crate::error::{ModelError, Result, check_len};
+use crate::error::{ModelError, Result, check_finite, check_len};
 use crate::render::ParamMap;
 use crate::sgemm::{Mat, sgemm};
 
@@ -647,6 +647,7 @@ impl UNet {
         check_image(height, width)?;
         let ci = self.in_channels;
         check_len("network input", ci * height * width, input.len())?;
+        check_finite("network input", input)?;
         let (hp, wp) = (pad_multiple(height), pad_multiple(width));
         let mut d = vec![0.0f32; hp * wp * ci];
         for y in 0..hp {
