@@ -337,7 +337,7 @@ impl GpuContext {
     /// Writes `data` at element `offset` of `buf` (offset must keep 4-byte alignment).
     pub(crate) fn write(&self, buf: &DeviceBuffer, offset: u64, data: &[f32]) -> Result<()> {
         let byte_off = offset * buf.precision.elem_bytes();
-        if byte_off % 4 != 0 || offset + data.len() as u64 > buf.elems {
+        if !byte_off.is_multiple_of(4) || offset + data.len() as u64 > buf.elems {
             return Err(GpuError::Size {
                 what: "write",
                 reason: format!(

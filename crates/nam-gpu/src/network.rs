@@ -740,7 +740,7 @@ impl GpuNetwork {
         want_nd: bool,
     ) -> Result<(Vec<f32>, Vec<f32>)> {
         let pc = self.render.param_channels as usize;
-        if dirs.len() % 9 != 0 {
+        if !dirs.len().is_multiple_of(9) {
             return Err(GpuError::InputLength {
                 what: "directions [N, 9]",
                 expected: dirs.len().next_multiple_of(9),
