@@ -94,7 +94,10 @@ fn main() {
     let peak = nam_gpu::probe::fma_peak_gflops(ctx, 512, 4096, 3).unwrap_or(f64::NAN);
     let mm = nam_gpu::probe::matmul_gflops(ctx, 16_384, 594, 594, 3).unwrap_or(f64::NAN);
     let sgemm = nam_model::sgemm_gflops(512, 3);
-    println!("fma peak: {peak:.1} GFLOP/s; tiled matmul 16384x594x594: {mm:.1} GFLOP/s");
+    println!(
+        "fma peak: {peak:.1} GFLOP/s; matmul ({:?}) 16384x594x594: {mm:.1} GFLOP/s",
+        ctx.matmul_variant()
+    );
     println!(
         "cpu sgemm 512³: {sgemm:.1} GFLOP/s; gpu matmul / cpu sgemm = {:.2} (target ≥ 0.10); matmul / fma peak = {:.2}",
         mm / sgemm,
