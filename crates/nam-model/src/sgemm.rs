@@ -82,6 +82,53 @@ pub(crate) fn sgemm(
     }
 }
 
+/// Like [`sgemm`] but writes `C` transposed: `ct[j·ldct + i] = (A·B)[i, j]`.
+/// With few output columns (n < 16) this puts the gemm kernel's SIMD lanes
+/// along the long `m` dimension instead of the short `n` one.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn sgemm_into_transposed(
+    m: usize,
+    n: usize,
+    k: usize,
+    a: Mat<'_>,
+    b: Mat<'_>,
+    ct: &mut [f32],
+    ldct: usize,
+) {
+    if m == 0 || n == 0 {
+        return;
+    }
+    assert!(k > 0 && a.ld >= k && b.ld >= n && ldct >= m);
+    assert!(a.data.len() >= (m - 1) * a.ld + k);
+    assert!(b.data.len() >= (k - 1) * b.ld + n);
+    assert!(ct.len() >= (n - 1) * ldct + m);
+    // SAFETY: as in `sgemm`, with the destination strides swapped (row stride 1,
+    // column stride ldct); the asserts bound every addressed element.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            ct.as_mut_ptr(),
+            ldct as isize,
+            1,
+            false,
+            a.data.as_ptr(),
+            1,
+            a.ld as isize,
+            b.data.as_ptr(),
+            1,
+            b.ld as isize,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}
+
 /// Plain triple loop used to test [`sgemm`].
 #[cfg(test)]
 fn naive(m: usize, n: usize, k: usize, a: &[f32], b: &[f32]) -> Vec<f32> {

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use crate::error::{ModelError, Result, check_finite, check_len};
 use crate::render::ParamMap;
-use crate::sgemm::{Mat, sgemm};
+use crate::sgemm::{Mat, sgemm, sgemm_into_transposed};
 
 /// Largest accepted image side, in pixels (guards size arithmetic).
 pub const MAX_SIDE: usize = 1 << 15;
@@ -16,6 +16,10 @@ pub const MAX_SIDE: usize = 1 << 15;
 /// Output pixels per GEMM band: enough rows for the GEMM kernel, small enough
 /// that the im2col band stays in cache.
 const BAND_PIXELS: usize = 512;
+
+/// Convolutions with fewer output channels than this run their GEMM with the
+/// pixel dimension along the SIMD lanes (16 f32 per AVX-512 register).
+const TRANSPOSE_BELOW: usize = 16;
 
 pub(crate) fn pad_multiple(n: usize) -> usize {
     n.div_ceil(8) * 8
@@ -101,42 +105,64 @@ impl PackedConv {
         let mut out = vec![0.0f32; ho * wo * self.cout];
         out.par_chunks_mut(rows * wo * self.cout)
             .enumerate()
-            .for_each_init(Vec::new, |col: &mut Vec<f32>, (band, dst)| {
-                let m = dst.len() / self.cout;
-                col.resize(m * kk, 0.0);
-                let p0 = band * rows * wo;
-                for p in 0..m {
-                    let (oy, ox) = ((p0 + p) / wo, (p0 + p) % wo);
-                    let row = &mut col[p * kk..(p + 1) * kk];
-                    for ky in 0..self.k {
-                        let iy = (oy * self.stride + ky)
-                            .saturating_sub(self.pad)
-                            .min(x.h - 1);
-                        for kx in 0..self.k {
-                            let ix = (ox * self.stride + kx)
+            .for_each_init(
+                || (Vec::new(), Vec::new()),
+                |(col, tmp): &mut (Vec<f32>, Vec<f32>), (band, dst)| {
+                    let m = dst.len() / self.cout;
+                    col.resize(m * kk, 0.0);
+                    let p0 = band * rows * wo;
+                    for p in 0..m {
+                        let (oy, ox) = ((p0 + p) / wo, (p0 + p) % wo);
+                        let row = &mut col[p * kk..(p + 1) * kk];
+                        for ky in 0..self.k {
+                            let iy = (oy * self.stride + ky)
                                 .saturating_sub(self.pad)
-                                .min(x.w - 1);
-                            let src = (iy * x.w + ix) * x.c;
-                            let t = (ky * self.k + kx) * self.cin;
-                            row[t..t + self.cin].copy_from_slice(&x.d[src..src + x.c]);
+                                .min(x.h - 1);
+                            for kx in 0..self.k {
+                                let ix = (ox * self.stride + kx)
+                                    .saturating_sub(self.pad)
+                                    .min(x.w - 1);
+                                let src = (iy * x.w + ix) * x.c;
+                                let t = (ky * self.k + kx) * self.cin;
+                                row[t..t + self.cin].copy_from_slice(&x.d[src..src + x.c]);
+                            }
                         }
                     }
-                }
-                sgemm(
-                    m,
-                    self.cout,
-                    kk,
-                    Mat { data: col, ld: kk },
-                    Mat {
+                    let b = Mat {
                         data: &self.wt,
                         ld: self.cout,
-                    },
-                    dst,
-                    self.cout,
-                    false,
-                    1,
-                );
-            });
+                    };
+                    if self.cout < TRANSPOSE_BELOW {
+                        tmp.resize(m * self.cout, 0.0);
+                        sgemm_into_transposed(
+                            m,
+                            self.cout,
+                            kk,
+                            Mat { data: col, ld: kk },
+                            b,
+                            tmp,
+                            m,
+                        );
+                        for (p, px) in dst.chunks_exact_mut(self.cout).enumerate() {
+                            for (o, v) in px.iter_mut().enumerate() {
+                                *v = tmp[o * m + p];
+                            }
+                        }
+                    } else {
+                        sgemm(
+                            m,
+                            self.cout,
+                            kk,
+                            Mat { data: col, ld: kk },
+                            b,
+                            dst,
+                            self.cout,
+                            false,
+                            1,
+                        );
+                    }
+                },
+            );
         Hwc {
             h: ho,
             w: wo,
