@@ -24,6 +24,14 @@ pub enum ModelError {
         /// Flat index of the first offending value.
         index: usize,
     },
+    /// A `.nam` param-map file is malformed.
+    #[error("{file}: invalid param map: {reason}")]
+    ParamFile {
+        /// Source label.
+        file: String,
+        /// What is wrong.
+        reason: String,
+    },
     /// A light or view position at or below the surface plane z = 0.
     #[error("light and view must be above the surface (z > 0)")]
     BelowSurface,

@@ -8,6 +8,7 @@
 //! * [`Model`] — both, built from one [`nam_weights::Weights`].
 //! * [`reference`] — readable loops with f32 or f64 accumulation, the yardstick
 //!   for the fast path.
+//! * [`ParamMap::to_nam_bytes`] / [`ParamMap::from_nam_bytes`] — the `.nam` file.
 //! * [`geometry`] — pixel positions and per-pixel directions (DESIGN §3).
 //!
 //! Conventions: directions are unit vectors in the surface frame (z up);
@@ -19,6 +20,7 @@
 pub mod encoding;
 mod error;
 pub mod geometry;
+mod param_file;
 pub mod reference;
 mod render;
 mod sgemm;

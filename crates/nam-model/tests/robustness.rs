@@ -113,3 +113,68 @@ fn relight_rejects_bad_maps_and_positions_and_handles_degenerate_geometry() {
         .unwrap();
     assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0));
 }
+
+/// Directional relight (ND_enc once) vs the general path with the same
+/// directions at every pixel: identical math, different GEMM row counts.
+const DIRECTIONAL_TOL: f32 = 1e-5;
+
+#[test]
+fn directional_relight_matches_per_pixel_path_with_constant_directions() {
+    let net = RenderNet::new(&weights()).unwrap().with_tile(5);
+    let (h, w) = (3, 7);
+    let data: Vec<f32> = (0..h * w * 64)
+        .map(|i| ((i * 31 % 89) as f32) / 44.0 - 1.0)
+        .collect();
+    let map = ParamMap {
+        height: h,
+        width: w,
+        channels: 64,
+        data,
+    };
+    let wi = [0.3, -0.2, 0.932_738];
+    let wo = [0.0, 0.6, 0.8];
+    let fast = net.relight_directional(&map, wi, wo).unwrap();
+    let general = net
+        .relight_with_directions(&map, &vec![wi; h * w], &vec![wo; h * w])
+        .unwrap();
+    for (a, b) in fast.data.iter().zip(&general.data) {
+        assert!(
+            (a - b).abs() <= DIRECTIONAL_TOL * (1.0 + b.abs()),
+            "{a} vs {b}"
+        );
+    }
+    assert!(
+        fast.data.iter().any(|&v| v > 0.0),
+        "test must compare non-trivial output"
+    );
+}
+
+#[test]
+fn param_map_roundtrips_through_nam_bytes_and_rejects_mismatches() {
+    let map = ParamMap {
+        height: 2,
+        width: 3,
+        channels: 64,
+        data: (0..384).map(|i| i as f32 / 7.0).collect(),
+    };
+    let bytes = map.to_nam_bytes("abc123");
+    let (back, sha) = ParamMap::from_nam_bytes(&bytes, "m.nam").unwrap();
+    assert_eq!(back, map);
+    assert_eq!(sha, "abc123");
+    // A model file is not a param map.
+    let model = weights().to_safetensors_bytes();
+    assert!(matches!(
+        ParamMap::from_nam_bytes(&model, "w"),
+        Err(ModelError::ParamFile { .. })
+    ));
+    // Config size disagreeing with the tensor.
+    let cfg = r#"{"format":"nam-params","version":1,"height":4,"width":3,"model_sha256":""}"#;
+    let meta = std::collections::BTreeMap::from([("config".to_string(), cfg.to_string())]);
+    let t = nam_weights::Tensor::new(vec![2, 3, 64], map.data.clone()).unwrap();
+    let tensors = std::collections::BTreeMap::from([("params".to_string(), t)]);
+    let bytes = nam_weights::write_safetensors(&tensors, &meta);
+    assert!(matches!(
+        ParamMap::from_nam_bytes(&bytes, "t"),
+        Err(ModelError::ParamFile { .. })
+    ));
+}

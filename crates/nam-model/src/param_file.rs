@@ -1,0 +1,93 @@
+//! The `.nam` param-map file (docs/FORMAT.md): safetensors with one tensor
+//! `params` `[H, W, C]` F32 and a `config` JSON in `__metadata__`.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use nam_weights::{Tensor, TensorFile, write_safetensors};
+
+use crate::error::{ModelError, Result};
+use crate::render::ParamMap;
+
+impl ParamMap {
+    /// Serialises as a `.nam` file; `model_sha256` identifies the weights that made it.
+    pub fn to_nam_bytes(&self, model_sha256: &str) -> Vec<u8> {
+        let config = serde_json::json!({
+            "format": "nam-params", "version": 1,
+            "height": self.height, "width": self.width, "model_sha256": model_sha256,
+        });
+        let meta = BTreeMap::from([("config".to_string(), config.to_string())]);
+        let mut tensors = BTreeMap::new();
+        if let Some(t) = Tensor::new(
+            vec![self.height, self.width, self.channels],
+            self.data.clone(),
+        ) {
+            tensors.insert("params".to_string(), t);
+        }
+        write_safetensors(&tensors, &meta)
+    }
+
+    /// Parses a `.nam` file; `label` names it in errors. Returns the map and the
+    /// recorded `model_sha256`.
+    pub fn from_nam_bytes(bytes: &[u8], label: &str) -> Result<(Self, String)> {
+        Self::from_tensor_file(TensorFile::from_bytes(bytes, label)?)
+    }
+
+    /// Reads a `.nam` file from disk.
+    pub fn from_nam_file(path: impl AsRef<Path>) -> Result<(Self, String)> {
+        Self::from_tensor_file(TensorFile::from_file(path)?)
+    }
+
+    fn from_tensor_file(f: TensorFile) -> Result<(Self, String)> {
+        let bad = |reason: String| ModelError::ParamFile {
+            file: f.label().to_string(),
+            reason,
+        };
+        let cfg: serde_json::Value = f
+            .metadata()
+            .get("config")
+            .ok_or_else(|| bad("__metadata__ has no \"config\"".into()))
+            .and_then(|s| {
+                serde_json::from_str(s).map_err(|e| bad(format!("config is not JSON: {e}")))
+            })?;
+        if cfg["format"] != "nam-params" || cfg["version"] != 1 {
+            return Err(bad(format!("not a nam-params v1 file: {}", cfg["format"])));
+        }
+        let dim = |k: &str| {
+            cfg[k]
+                .as_u64()
+                .and_then(|v| usize::try_from(v).ok())
+                .ok_or_else(|| bad(format!("config.{k} is not a size")))
+        };
+        let (h, w) = (dim("height")?, dim("width")?);
+        let t = f
+            .tensors()
+            .get("params")
+            .ok_or_else(|| bad("no tensor `params`".into()))?;
+        let shape = t.shape();
+        if shape.len() != 3 || shape[0] != h || shape[1] != w || h == 0 || w == 0 {
+            return Err(bad(format!(
+                "`params` has shape {shape:?}, config says {h}×{w}×C"
+            )));
+        }
+        if f.tensors().len() != 1 {
+            return Err(bad("extra tensors besides `params`".into()));
+        }
+        if let Some(i) = t.data().iter().position(|v| !v.is_finite()) {
+            return Err(ModelError::NonFinite {
+                what: "params",
+                index: i,
+            });
+        }
+        let sha = cfg["model_sha256"].as_str().unwrap_or_default().to_string();
+        Ok((
+            Self {
+                height: h,
+                width: w,
+                channels: shape[2],
+                data: t.data().to_vec(),
+            },
+            sha,
+        ))
+    }
+}
