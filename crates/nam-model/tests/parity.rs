@@ -1,6 +1,6 @@
 //! Parity with PyTorch on golden tensors (tests/fixtures, written by
-#![allow(clippy::needless_range_loop)]
 //! `python -m train_py.golden`), and fast path vs reference.
+#![allow(clippy::needless_range_loop)]
 
 use std::path::{Path, PathBuf};
 
@@ -12,6 +12,9 @@ use nam_weights::{ModelConfig, TensorFile, Weights};
 /// 12C·9 products through ~40 layers differ from oneDNN's summation order by a
 /// few 1e-6 relative; 1e-4 leaves a margin while catching any wrong tap or index.
 const UNET_TOL: f32 = 1e-4;
+/// The reference with plain sequential f32 sums (no blocking, no f64): rounding
+/// grows with the ~430-term dot products over ~40 layers; measured 1.4e-4.
+const UNET_REFERENCE_F32_TOL: f32 = 5e-4;
 /// Render outputs in log space (and ND features) vs torch: |Δ| ≤ tol·(1 + |torch|).
 const RENDER_LOG_TOL: f32 = 1e-4;
 /// Encoding vs torch: both reduce the argument exactly; differences are the
@@ -85,10 +88,17 @@ fn check_unet(gold: &Golden) {
     let e = max_rel_err(&fast.data, &want);
     println!("unet fast vs torch: max rel err {e:e}");
     assert!(e < UNET_TOL, "fast U-Net vs torch: {e:e}");
-    let r = reference::estimate(&gold.weights, input, h, w, Accumulate::F64).unwrap();
-    let e = max_rel_err(&r.data, &want);
-    println!("unet reference(f64) vs torch: max rel err {e:e}");
-    assert!(e < UNET_TOL, "reference U-Net vs torch: {e:e}");
+    for acc in [Accumulate::F64, Accumulate::F32] {
+        let r = reference::estimate(&gold.weights, input, h, w, acc).unwrap();
+        let e = max_rel_err(&r.data, &want);
+        println!("unet reference({acc:?}) vs torch: max rel err {e:e}");
+        let tol = if acc == Accumulate::F32 {
+            UNET_REFERENCE_F32_TOL
+        } else {
+            UNET_TOL
+        };
+        assert!(e < tol, "reference U-Net ({acc:?}) vs torch: {e:e}");
+    }
 }
 
 fn check_render(gold: &Golden) {
