@@ -3,7 +3,7 @@
 //! - [`maps`]: SVBRDF parameter maps and the 4-panel / separate-file formats.
 //! - [`geometry`]: pixel positions, the capture camera, per-pixel ωi/ωo/ωh.
 //! - [`brdf`]: pointwise GGX, generic over `f32`/`f64` ([`Float`]).
-//! - [`render`]: a whole map for one light and viewer (rayon).
+//! - [`mod@render`]: a whole map for one light and viewer (rayon).
 //! - [`color`]: log compression, sRGB and gamma curves, the display transform.
 //! - [`protocol`]: seeded Reflect / Identity / Hemisphere samplers.
 //! - [`imageio`]: a plain RGB buffer and PNG/EXR encode/decode.
