@@ -9,6 +9,7 @@
 //! * [`reference`] — readable loops with f32 or f64 accumulation, the yardstick
 //!   for the fast path.
 //! * [`ParamMap::to_nam_bytes`] / [`ParamMap::from_nam_bytes`] — the `.nam` file.
+//! * [`input::network_input`] — photo (linear RGB, HWC) → the 4-channel CHW input.
 //! * [`geometry`] — pixel positions and per-pixel directions (DESIGN §3).
 //!
 //! Conventions: directions are unit vectors in the surface frame (z up);
@@ -20,6 +21,7 @@
 pub mod encoding;
 mod error;
 pub mod geometry;
+pub mod input;
 mod param_file;
 pub mod reference;
 mod render;

@@ -15,6 +15,8 @@ const UNET_TOL: f32 = 1e-4;
 /// The reference with plain sequential f32 sums (no blocking, no f64): rounding
 /// grows with the ~430-term dot products over ~40 layers; measured 1.4e-4.
 const UNET_REFERENCE_F32_TOL: f32 = 5e-4;
+/// Network input built from the photo vs torch: one log1p and one sqrt per value.
+const INPUT_TOL: f32 = 1e-6;
 /// Render outputs in log space (and ND features) vs torch: |Δ| ≤ tol·(1 + |torch|).
 const RENDER_LOG_TOL: f32 = 1e-4;
 /// Encoding vs torch: both reduce the argument exactly; differences are the
@@ -80,6 +82,12 @@ fn check_unet(gold: &Golden) {
     let (h, w) = (gold.h, gold.w);
     let pc = gold.weights.config().param_channels;
     let input = gold.g.get("input", &[4, h, w]).unwrap();
+    let photo = gold.g.get("photo", &[h, w, 3]).unwrap();
+    let mode = gold.weights.config().log_mode;
+    let built = nam_model::input::network_input(photo, h, w, mode).unwrap();
+    let e = max_rel_err(&built, input);
+    println!("network input ({mode:?}) vs torch: {e:e}");
+    assert!(e < INPUT_TOL, "network input: {e:e}");
     let want = chw_to_hwc(gold.g.get("params", &[pc, h, w]).unwrap(), pc, h, w);
     let fast = UNet::new(&gold.weights)
         .unwrap()
