@@ -6,7 +6,7 @@
 //!   images ([`RenderNet::relight`]) and the separate pieces
 //!   ([`RenderNet::encode`], [`RenderNet::nd_enc`], [`RenderNet::render_from_features`]).
 //! * [`Model`] — both, built from one [`nam_weights::Weights`].
-//! * [`reference`] — readable loops with f32 or f64 accumulation, the yardstick
+//! * [`reference`](mod@reference) — readable loops with f32 or f64 accumulation, the yardstick
 //!   for the fast path.
 //! * [`ParamMap::to_nam_bytes`] / [`ParamMap::from_nam_bytes`] — the `.nam` file.
 //! * [`input::network_input`] — photo (linear RGB, HWC) → the 4-channel CHW input.
