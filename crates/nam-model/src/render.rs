@@ -270,27 +270,24 @@ impl RenderNet {
     /// ND_enc of `n` encoded queries (`n × 297` → `n × 32`).
     pub fn nd_enc(&self, encoded: &[f32], out: &mut [f32]) -> Result<()> {
         let e = self.encoded_len();
+        let d = self.nd_len();
         let n = encoded.len() / e;
         check_len("encoded", n * e, encoded.len())?;
-        check_len("nd out", n * self.nd_len(), out.len())?;
-        let h = self.max_hidden();
-        let (mut a, mut b) = (vec![0.0; n * h], vec![0.0; n * h]);
-        Self::chain(
-            &self.nd,
-            n,
-            encoded,
-            e,
-            &mut a,
-            &mut b,
-            out,
-            self.nd_len(),
-            rayon::current_num_threads(),
+        check_len("nd out", n * d, out.len())?;
+        let t = self.tile.min(n.max(1));
+        out.par_chunks_mut(t * d).enumerate().for_each_init(
+            || self.scratch(t),
+            |s, (ti, dst)| {
+                let m = dst.len() / d;
+                let src = &encoded[ti * t * e..(ti * t + m) * e];
+                Self::chain(&self.nd, m, src, e, &mut s.a, &mut s.b, dst, d, 1);
+            },
         );
         Ok(())
     }
 
     /// Render MLP on precomputed features: `params` (`n × 64`) and `nd` (`n × 32`)
-    /// → log-space output `n × 3` (`ln(R + 1)`).
+    /// → log-space output `n × 3` (`ln(R + 1)`). Tiled like the fused path.
     pub fn render_from_features(
         &self,
         params: &[f32],
@@ -302,23 +299,19 @@ impl RenderNet {
         check_len("params", n * p, params.len())?;
         check_len("nd", n * d, nd.len())?;
         check_len("log out", n * 3, out_log.len())?;
-        let mut x = vec![0.0f32; n * (p + d)];
-        for q in 0..n {
-            x[q * (p + d)..q * (p + d) + p].copy_from_slice(&params[q * p..(q + 1) * p]);
-            x[q * (p + d) + p..(q + 1) * (p + d)].copy_from_slice(&nd[q * d..(q + 1) * d]);
-        }
-        let h = self.max_hidden();
-        let (mut a, mut b) = (vec![0.0; n * h], vec![0.0; n * h]);
-        Self::chain(
-            &self.render,
-            n,
-            &x,
-            p + d,
-            &mut a,
-            &mut b,
-            out_log,
-            3,
-            rayon::current_num_threads(),
+        let t = self.tile.min(n.max(1));
+        out_log.par_chunks_mut(t * 3).enumerate().for_each_init(
+            || self.scratch(t),
+            |s, (ti, dst)| {
+                let m = dst.len() / 3;
+                for q in 0..m {
+                    let g = ti * t + q;
+                    let row = &mut s.x[q * (p + d)..(q + 1) * (p + d)];
+                    row[..p].copy_from_slice(&params[g * p..(g + 1) * p]);
+                    row[p..].copy_from_slice(&nd[g * d..(g + 1) * d]);
+                }
+                Self::chain(&self.render, m, &s.x, p + d, &mut s.a, &mut s.b, dst, 3, 1);
+            },
         );
         Ok(())
     }
@@ -372,7 +365,7 @@ impl RenderNet {
         check_finite("params", params)?;
         check_finite("wi", wi.as_flattened())?;
         check_finite("wo", wo.as_flattened())?;
-        let t = self.tile;
+        let t = self.tile.min(n.max(1));
         out_log.par_chunks_mut(t * 3).enumerate().for_each_init(
             || self.scratch(t),
             |s, (ti, out)| {
@@ -404,7 +397,7 @@ impl RenderNet {
         check_len("log out", n * 3, out_log.len())?;
         check_finite("params", params)?;
         check_finite("dirs", dirs)?;
-        let t = self.tile;
+        let t = self.tile.min(n.max(1));
         out_log.par_chunks_mut(t * 3).enumerate().for_each_init(
             || self.scratch(t),
             |s, (ti, out)| {
@@ -455,7 +448,7 @@ impl RenderNet {
             return Err(ModelError::BelowSurface);
         }
         let (h, w) = (map.height, map.width);
-        let t = self.tile;
+        let t = self.tile.min(n.max(1));
         let mut data = vec![0.0f32; n * 3];
         data.par_chunks_mut(t * 3).enumerate().for_each_init(
             || self.scratch(t),
@@ -499,7 +492,7 @@ impl RenderNet {
         let mut nd = vec![0.0f32; self.nd_len()];
         self.nd_enc(&enc, &mut nd)?;
         let (p, d) = (self.params, self.nd_len());
-        let t = self.tile;
+        let t = self.tile.min(n.max(1));
         let mut data = vec![0.0f32; n * 3];
         data.par_chunks_mut(t * 3).enumerate().for_each_init(
             || self.scratch(t),
