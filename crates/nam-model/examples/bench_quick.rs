@@ -1,6 +1,8 @@
 //! Quick best-of-N timings without criterion (same work as benches/cpu.rs), for
 //! side-by-side runs with `python -m train_py.bench_torch` on a busy machine.
 //!
+//! Set NAM_SKIP_RELIGHT=1 to time only the estimator.
+//!
 //! `RAYON_NUM_THREADS=2 cargo run --release -p nam-model --example bench_quick -- [reps] [tile]`
 
 use std::time::Instant;
@@ -45,9 +47,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         data,
     };
     let view = [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE];
-    let ms = best_ms(reps, || {
-        let _ = net.relight(&map, [1.5, 1.0, 3.5], view);
-    });
+    let skip_relight = std::env::var_os("NAM_SKIP_RELIGHT").is_some();
+    let ms = if skip_relight {
+        f64::NAN
+    } else {
+        best_ms(reps, || {
+            let _ = net.relight(&map, [1.5, 1.0, 3.5], view);
+        })
+    };
     let gf = 2.0 * 618_086.0 * (s * s) as f64 / ms / 1e6;
     println!(
         "relight_{s} (tile {tile}): {ms:.1} ms ({gf:.1} GFLOP/s, {:.0}% of sgemm)",

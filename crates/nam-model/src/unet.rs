@@ -118,10 +118,18 @@ impl PackedConv {
                             let iy = (oy * self.stride + ky)
                                 .saturating_sub(self.pad)
                                 .min(x.h - 1);
+                            let x0 = ox * self.stride;
+                            if self.stride == 1 && x0 >= self.pad && x0 + self.k - self.pad <= x.w {
+                                // Interior, stride 1: the k taps of this row are
+                                // k·cin contiguous values; one copy instead of k.
+                                let src = (iy * x.w + x0 - self.pad) * x.c;
+                                let t = ky * self.k * self.cin;
+                                let len = self.k * self.cin;
+                                row[t..t + len].copy_from_slice(&x.d[src..src + len]);
+                                continue;
+                            }
                             for kx in 0..self.k {
-                                let ix = (ox * self.stride + kx)
-                                    .saturating_sub(self.pad)
-                                    .min(x.w - 1);
+                                let ix = (x0 + kx).saturating_sub(self.pad).min(x.w - 1);
                                 let src = (iy * x.w + ix) * x.c;
                                 let t = (ky * self.k + kx) * self.cin;
                                 row[t..t + self.cin].copy_from_slice(&x.d[src..src + x.c]);
