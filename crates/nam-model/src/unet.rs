@@ -17,6 +17,9 @@ pub const MAX_SIDE: usize = 1 << 15;
 /// that the im2col band stays in cache.
 const BAND_PIXELS: usize = 512;
 
+/// Pixels per rayon task in element-wise passes.
+const EW_PIXELS: usize = 1024;
+
 /// Convolutions with fewer output channels than this run their GEMM with the
 /// pixel dimension along the SIMD lanes (16 f32 per AVX-512 register).
 const TRANSPOSE_BELOW: usize = 16;
@@ -308,19 +311,26 @@ impl Ha {
         let (h, w) = (main.h, main.w);
         let mut out = vec![0.0f32; h * w * co];
         let half = co / 2;
-        out.par_chunks_mut(co)
-            .zip(main.d.par_chunks(main.c))
-            .zip(feat.d.par_chunks(co).zip(c1b.d.par_chunks(half)))
+        const P: usize = EW_PIXELS;
+        out.par_chunks_mut(co * P)
+            .zip(main.d.par_chunks(main.c * P))
+            .zip(feat.d.par_chunks(co * P).zip(c1b.d.par_chunks(half * P)))
             .for_each(|((o, m), (f, c1))| {
-                for k in 0..co {
-                    let a = sigmoid(m[off + k]);
-                    let b = if f[k] >= 0.0 { f[k] } else { f[k] * slope };
-                    let c = if k < half {
-                        c1[k]
-                    } else {
-                        m[off + co + k - half]
-                    };
-                    o[k] = a * b + c;
+                let px = o
+                    .chunks_exact_mut(co)
+                    .zip(m.chunks_exact(main.c))
+                    .zip(f.chunks_exact(co).zip(c1.chunks_exact(half)));
+                for ((o, m), (f, c1)) in px {
+                    for k in 0..co {
+                        let a = sigmoid(m[off + k]);
+                        let b = if f[k] >= 0.0 { f[k] } else { f[k] * slope };
+                        let c = if k < half {
+                            c1[k]
+                        } else {
+                            m[off + co + k - half]
+                        };
+                        o[k] = a * b + c;
+                    }
                 }
             });
         let down = self.has_down.then(|| {
@@ -392,33 +402,31 @@ impl Basic {
         let (mut y, down) = self.ha1.run(x, eps, slope);
         let co = y.c;
         let (s1, t1) = &self.bn1;
-        y.d.par_chunks_mut(co).for_each(|px| {
-            for k in 0..co {
-                px[k] = (px[k] * s1[k] + t1[k]).max(0.0);
+        const P: usize = EW_PIXELS;
+        y.d.par_chunks_mut(co * P).for_each(|blk| {
+            for px in blk.chunks_exact_mut(co) {
+                for k in 0..co {
+                    px[k] = (px[k] * s1[k] + t1[k]).max(0.0);
+                }
             }
         });
         let (mut y, _) = self.ha2.run(&y, eps, slope);
         let (s2, t2) = &self.bn2;
-        match (&down, &self.down_bias) {
-            (Some(d), Some(b)) => {
-                y.d.par_chunks_mut(co)
-                    .zip(d.d.par_chunks(co))
-                    .for_each(|(px, id)| {
-                        for k in 0..co {
-                            px[k] = (px[k] * s2[k] + t2[k] + id[k] + b[k]).max(0.0);
-                        }
-                    })
-            }
-            _ => {
-                y.d.par_chunks_mut(co)
-                    .zip(x.d.par_chunks(co))
-                    .for_each(|(px, id)| {
-                        for k in 0..co {
-                            px[k] = (px[k] * s2[k] + t2[k] + id[k]).max(0.0);
-                        }
-                    })
-            }
-        }
+        // Identity branch: the fused 1×1 `down` conv plus its bias, or x itself.
+        let zero = vec![0.0f32; co];
+        let (id, bias) = match (&down, &self.down_bias) {
+            (Some(d), Some(b)) => (&d.d, b),
+            _ => (&x.d, &zero),
+        };
+        y.d.par_chunks_mut(co * P)
+            .zip(id.par_chunks(co * P))
+            .for_each(|(blk, idb)| {
+                for (px, id) in blk.chunks_exact_mut(co).zip(idb.chunks_exact(co)) {
+                    for k in 0..co {
+                        px[k] = (px[k] * s2[k] + t2[k] + id[k] + bias[k]).max(0.0);
+                    }
+                }
+            });
         y
     }
 }
