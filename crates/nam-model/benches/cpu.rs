@@ -47,6 +47,11 @@ fn benches(c: &mut Criterion) {
         bch.iter(|| net.relight(black_box(&map), light, view))
     });
 
+    let wi = nam_model::geometry::direction([0.0; 3], light);
+    g.bench_function("relight_directional_256", |bch| {
+        bch.iter(|| net.relight_directional(black_box(&map), wi, [0.0, 0.0, 1.0]))
+    });
+
     for width in [8usize, 16] {
         let w = Weights::random(ModelConfig::standard(width), 2).expect("valid");
         let unet = UNet::new(&w).expect("complete");

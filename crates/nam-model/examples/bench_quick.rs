@@ -60,6 +60,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "relight_{s} (tile {tile}): {ms:.1} ms ({gf:.1} GFLOP/s, {:.0}% of sgemm)",
         100.0 * gf / sg
     );
+    if !skip_relight {
+        let wi = nam_model::geometry::direction([0.0; 3], [1.5, 1.0, 3.5]);
+        let dms = best_ms(reps, || {
+            let _ = net.relight_directional(&map, wi, [0.0, 0.0, 1.0]);
+        });
+        println!(
+            "relight_directional_{s} (ND_enc once): {dms:.1} ms ({:.1}× faster)",
+            ms / dms
+        );
+    }
     let input: Vec<f32> = (0..4 * s * s)
         .map(|i| ((i * 37) % 101) as f32 / 101.0)
         .collect();

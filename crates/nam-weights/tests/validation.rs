@@ -247,3 +247,22 @@ fn file_loading_reports_the_path() {
     let err = Weights::from_file(&missing).unwrap_err();
     assert!(err.to_string().contains("nope.safetensors"), "{err}");
 }
+
+#[test]
+fn shipped_default_model_validates_when_present() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.safetensors");
+    if !path.exists() {
+        println!("skipping: {} does not exist yet", path.display());
+        return;
+    }
+    let w = Weights::from_file(&path).unwrap();
+    let cfg = w.config();
+    println!(
+        "default model: width {}, dtype {}, {} tensors",
+        cfg.width,
+        cfg.dtype,
+        w.tensors().len()
+    );
+    assert_eq!(w.tensors().len(), expected_tensors(cfg).len());
+}
