@@ -69,6 +69,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "relight_directional_{s} (ND_enc once): {dms:.1} ms ({:.1}× faster)",
             ms / dms
         );
+        if nam_model::bf16_supported() {
+            let bf = net.clone().with_bf16()?;
+            let bms = best_ms(reps, || {
+                let _ = bf.relight(&map, [1.5, 1.0, 3.5], view);
+            });
+            let bgf = 2.0 * 618_086.0 * (s * s) as f64 / bms / 1e6;
+            println!(
+                "relight_bf16_{s}: {bms:.1} ms ({bgf:.1} GFLOP/s, {:.2}× the f32 path)",
+                ms / bms
+            );
+        }
     }
     let input: Vec<f32> = (0..4 * s * s)
         .map(|i| ((i * 37) % 101) as f32 / 101.0)

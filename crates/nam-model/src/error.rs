@@ -32,6 +32,9 @@ pub enum ModelError {
         /// What is wrong.
         reason: String,
     },
+    /// The requested code path needs CPU features this machine lacks.
+    #[error("unsupported on this CPU: {0}")]
+    Unsupported(&'static str),
     /// A light or view position at or below the surface plane z = 0.
     #[error("light and view must be above the surface (z > 0)")]
     BelowSurface,

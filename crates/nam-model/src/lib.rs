@@ -18,6 +18,7 @@
 
 #![deny(unsafe_code)]
 
+mod bf16;
 pub mod encoding;
 mod error;
 pub mod geometry;
@@ -28,6 +29,7 @@ mod render;
 mod sgemm;
 mod unet;
 
+pub use bf16::bf16_supported;
 pub use error::{ModelError, Result};
 pub use render::{DEFAULT_TILE, ParamMap, RenderNet, Rgb, radiance_from_log};
 pub use unet::{MAX_SIDE, UNet};

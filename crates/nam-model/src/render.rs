@@ -6,6 +6,7 @@
 use nam_weights::Weights;
 use rayon::prelude::*;
 
+use crate::bf16::{Bf16Dense, bf16_supported};
 use crate::encoding::{direction_triple, encode_into, encoded_len};
 use crate::error::{ModelError, Result, check_finite, check_len};
 use crate::geometry::{direction, pixel_position};
@@ -100,6 +101,8 @@ pub struct RenderNet {
     nd: Vec<Dense>,
     render: Vec<Dense>,
     tile: usize,
+    /// bf16 twins of `nd` and `render` when [`RenderNet::with_bf16`] was called.
+    bf16: Option<(Vec<Bf16Dense>, Vec<Bf16Dense>)>,
 }
 
 /// Per-thread scratch of one tile.
@@ -109,6 +112,7 @@ struct Scratch {
     b: Vec<f32>,
     x: Vec<f32>,
     log: Vec<f32>,
+    pairs: Vec<u32>,
 }
 
 impl RenderNet {
@@ -159,6 +163,7 @@ impl RenderNet {
             nd,
             render,
             tile: DEFAULT_TILE,
+            bf16: None,
         })
     }
 
@@ -166,6 +171,39 @@ impl RenderNet {
     pub fn with_tile(mut self, tile: usize) -> Self {
         self.tile = tile.max(1);
         self
+    }
+
+    /// Switches the fused paths ([`Self::relight`], [`Self::render_batch`], …) to
+    /// bf16 products with f32 accumulation (AVX-512 BF16; ~2× faster, log-space
+    /// differences of order 1e-3). Errors when the CPU lacks the instructions.
+    pub fn with_bf16(mut self) -> Result<Self> {
+        if !bf16_supported() {
+            return Err(ModelError::Unsupported(
+                "bf16 needs AVX-512 BF16 (avx512bf16)",
+            ));
+        }
+        let twin = |layers: &[Dense]| -> Vec<Bf16Dense> {
+            layers
+                .iter()
+                .map(|l| {
+                    // Back to [out, inp] for packing.
+                    let mut w = vec![0.0f32; l.out * l.inp];
+                    for i in 0..l.inp {
+                        for o in 0..l.out {
+                            w[o * l.inp + i] = l.wt[i * l.out + o];
+                        }
+                    }
+                    Bf16Dense::new(&w, l.out, l.inp, l.slope)
+                })
+                .collect()
+        };
+        self.bf16 = Some((twin(&self.nd), twin(&self.render)));
+        Ok(self)
+    }
+
+    /// Whether the bf16 path is active.
+    pub fn is_bf16(&self) -> bool {
+        self.bf16.is_some()
     }
 
     /// Parameter channels per pixel (64).
@@ -199,6 +237,46 @@ impl RenderNet {
             b: vec![0.0; n * self.max_hidden()],
             x: vec![0.0; n * (self.params + self.nd_len())],
             log: vec![0.0; n * 3],
+            pairs: Vec::new(),
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn chain_bf16(
+        layers: &[Bf16Dense],
+        n: usize,
+        input: &[f32],
+        ldin: usize,
+        a: &mut [f32],
+        b: &mut [f32],
+        last: &mut [f32],
+        ldlast: usize,
+        pairs: &mut Vec<u32>,
+    ) {
+        let mut cur_in_a = false;
+        for (i, l) in layers.iter().enumerate() {
+            let is_last = i + 1 == layers.len();
+            if i == 0 {
+                if is_last {
+                    l.forward(n, input, ldin, last, ldlast, pairs);
+                } else {
+                    l.forward(n, input, ldin, a, l.out(), pairs);
+                    cur_in_a = true;
+                }
+                continue;
+            }
+            let ldx = layers[i - 1].out();
+            let (src, dst): (&[f32], &mut [f32]) = if cur_in_a {
+                (&*a, &mut *b)
+            } else {
+                (&*b, &mut *a)
+            };
+            if is_last {
+                l.forward(n, src, ldx, last, ldlast, pairs);
+            } else {
+                l.forward(n, src, ldx, dst, l.out(), pairs);
+                cur_in_a = !cur_in_a;
+            }
         }
     }
 
@@ -325,6 +403,19 @@ impl RenderNet {
             s.x[q * (p + d)..q * (p + d) + p].copy_from_slice(&params[q * p..(q + 1) * p]);
         }
         // ND_enc writes straight into columns p..p+d of the render input.
+        if let Some((nd16, render16)) = &self.bf16 {
+            let Scratch {
+                enc,
+                a,
+                b,
+                x,
+                log,
+                pairs,
+            } = s;
+            Self::chain_bf16(nd16, n, enc, e, a, b, &mut x[p..], p + d, pairs);
+            Self::chain_bf16(render16, n, x, p + d, a, b, log, 3, pairs);
+            return;
+        }
         Self::chain(
             &self.nd,
             n,
