@@ -27,11 +27,11 @@ pub fn direction_triple(wi: [f32; 3], wo: [f32; 3]) -> [f32; 9] {
     ]
 }
 
-/// `(sin, cos)` of `(π/2)·u` for `|u| < 2^23`, with exact quarter-turn reduction.
+/// `(sin, cos)` of `(π/2)·u` for `|u| < 2^22`, with exact quarter-turn reduction.
 #[inline(always)]
 pub fn sincos_quarter_turns(u: f32) -> (f32, f32) {
     // Round to nearest via the 1.5·2^23 trick (exact for |u| < 2^22): unlike
-    // `f32::round` it compiles to two adds on any x86-64, so the loop vectorises.
+    // `f32::round` it compiles to two adds on any x86-64, so loops vectorise.
     const MAGIC: f32 = 12_582_912.0;
     let q = (u + MAGIC) - MAGIC;
     let r = (u - q) * std::f32::consts::FRAC_PI_2;
@@ -45,25 +45,41 @@ pub fn sincos_quarter_turns(u: f32) -> (f32, f32) {
         + r2 * (-0.5
             + r2 * (1.0 / 24.0
                 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40_320.0 + r2 * (-1.0 / 3_628_800.0)))));
-    let qi = q as i32 & 3;
-    let (s1, c1) = if qi & 1 == 1 { (c, -s) } else { (s, c) };
-    if qi & 2 == 2 { (-s1, -c1) } else { (s1, c1) }
+    // Quarter turn q mod 4, branch-free (bit selects keep it exact and vectorisable):
+    // odd q swaps (s, c) → (c, −s); q ≡ 2, 3 negates both.
+    let qi = q as i32;
+    let swap = 0u32.wrapping_sub((qi & 1) as u32);
+    let neg = ((qi & 2) as u32) << 30;
+    let s1 = (s.to_bits() & !swap) | (c.to_bits() & swap);
+    let c1 = (c.to_bits() & !swap) | ((-s).to_bits() & swap);
+    (f32::from_bits(s1 ^ neg), f32::from_bits(c1 ^ neg))
 }
 
-/// Writes the encoding of one direction triple into `out` (length `encoded_len(octaves)`).
+/// Maximum octaves [`encode_into`] handles with its stack buffer.
+pub const MAX_OCTAVES: usize = 30;
+
+/// Writes the encoding of one direction triple into `out` (length `encoded_len(octaves)`,
+/// `octaves ≤ MAX_OCTAVES`).
 #[inline]
 pub fn encode_into(c: &[f32; 9], octaves: usize, out: &mut [f32]) {
     out[..DIR_VALUES].copy_from_slice(c);
+    // Flat index i = 9k + j maps to out[9 + 2i] (sin) and out[9 + 2i + 1] (cos).
+    let n = DIR_VALUES * octaves.min(MAX_OCTAVES);
+    let mut u = [0.0f32; DIR_VALUES * MAX_OCTAVES];
     let mut scale = 2.0f32; // 2^(k+1)
-    for k in 0..octaves {
-        let base = DIR_VALUES + 2 * DIR_VALUES * k;
-        let o = &mut out[base..base + 2 * DIR_VALUES];
-        for j in 0..DIR_VALUES {
-            let (s, co) = sincos_quarter_turns(scale * c[j]);
-            o[2 * j] = s;
-            o[2 * j + 1] = co;
+    for k in u[..n].chunks_exact_mut(DIR_VALUES) {
+        for (v, &cj) in k.iter_mut().zip(c) {
+            *v = scale * cj;
         }
         scale *= 2.0;
+    }
+    for (pair, &ui) in out[DIR_VALUES..DIR_VALUES + 2 * n]
+        .chunks_exact_mut(2)
+        .zip(&u[..n])
+    {
+        let (s, co) = sincos_quarter_turns(ui);
+        pair[0] = s;
+        pair[1] = co;
     }
 }
 
