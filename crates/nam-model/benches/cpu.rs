@@ -52,6 +52,13 @@ fn benches(c: &mut Criterion) {
         bch.iter(|| net.relight_directional(black_box(&map), wi, [0.0, 0.0, 1.0]))
     });
 
+    if nam_model::bf16_supported() {
+        let bf = net.clone().with_bf16().expect("supported");
+        g.bench_function("relight_bf16_256", |bch| {
+            bch.iter(|| bf.relight(black_box(&map), light, view))
+        });
+    }
+
     for width in [8usize, 16] {
         let w = Weights::random(ModelConfig::standard(width), 2).expect("valid");
         let unet = UNet::new(&w).expect("complete");
