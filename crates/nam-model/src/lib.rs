@@ -5,6 +5,9 @@
 //!   MLP, fused per tile; batch queries ([`RenderNet::render_batch`]), whole
 //!   images ([`RenderNet::relight`]) and the separate pieces
 //!   ([`RenderNet::encode`], [`RenderNet::nd_enc`], [`RenderNet::render_from_features`]).
+//!   Also [`RenderNet::relight_directional`] (same ωi, ωo everywhere: ND_enc
+//!   runs once, DESIGN §9) and [`RenderNet::with_bf16`] (opt-in bf16 products,
+//!   f32 sums, AVX-512 BF16; check [`bf16_supported`]).
 //! * [`Model`] — both, built from one [`nam_weights::Weights`].
 //! * [`reference`](mod@reference) — readable loops with f32 or f64 accumulation, the yardstick
 //!   for the fast path.

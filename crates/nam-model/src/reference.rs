@@ -211,13 +211,12 @@ fn instance_norm<A: Acc>(x: &Chw, eps: f32) -> Chw {
     out
 }
 
-struct Ctx<'a> {
+struct Ctx {
     eps: f32,
     ha_slope: f32,
-    _w: &'a Weights,
 }
 
-impl Ctx<'_> {
+impl Ctx {
     fn ha<A: Acc>(&self, x: &Chw, p: &Scope<'_>, co: usize, s: usize) -> Result<Chw> {
         let ci = x.c;
         let g = p.get("gate.weight", &[co, ci, 3, 3])?;
@@ -317,7 +316,6 @@ fn estimate_impl<A: Acc>(
     let ctx = Ctx {
         eps: cfg.norm_eps,
         ha_slope: cfg.slopes.ha,
-        _w: weights,
     };
     let est = weights.scope("est");
     let c = cfg.width;
