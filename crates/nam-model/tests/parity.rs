@@ -292,3 +292,35 @@ fn relight_fast_path_matches_reference_with_folded_first_layers() {
         }
     }
 }
+
+/// Pixel directions vs the f64 golden geometry of train_py (DESIGN §3): f32
+/// positions and normalisation, ~1 ulp per component.
+const GEOMETRY_TOL: f64 = 1e-6;
+
+#[test]
+fn pixel_directions_match_golden_geometry_5x7() {
+    let path = fixtures().join("ggx_golden.safetensors");
+    let g = TensorFile::from_file(&path).unwrap();
+    let (h, w) = (5, 7);
+    let light = g.get("geom_light", &[3]).unwrap();
+    let view = g.get("geom_view", &[3]).unwrap();
+    let light = [light[0], light[1], light[2]];
+    let view = [view[0], view[1], view[2]];
+    let (wi, wo) = nam_model::geometry::pixel_directions(h, w, light, view);
+    let wh: Vec<[f32; 3]> = wi
+        .iter()
+        .zip(&wo)
+        .map(|(a, b)| nam_model::geometry::half_vector(*a, *b))
+        .collect();
+    for (name, ours) in [("geom_wi", &wi), ("geom_wo", &wo), ("geom_wh", &wh)] {
+        let want = g.get(name, &[h, w, 3]).unwrap();
+        let worst = ours
+            .as_flattened()
+            .iter()
+            .zip(want)
+            .map(|(a, b)| (f64::from(*a) - f64::from(*b)).abs())
+            .fold(0.0, f64::max);
+        println!("{name}: max abs err {worst:e}");
+        assert!(worst < GEOMETRY_TOL, "{name}: {worst:e}");
+    }
+}
