@@ -1,0 +1,183 @@
+//! [`NeuralModel`]: validated weights plus the networks on the CPU and, optionally, a GPU.
+
+use crate::error::{NamError, Result};
+use crate::material::NeuralMaterial;
+use crate::photo::Photo;
+use nam_model::{Model, ParamMap};
+use nam_weights::{ModelConfig, Weights};
+use sha2::{Digest, Sha256};
+use std::path::Path;
+
+/// The shipped default model (f16, BatchNorm folded), embedded at build time.
+#[cfg(feature = "default-model")]
+pub const EMBEDDED_MODEL: &[u8] = include_bytes!(concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../models/default.safetensors"
+));
+
+/// Which backend runs the networks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BackendKind {
+    /// `nam-model`'s fast CPU path (rayon's current pool).
+    Cpu,
+    /// `nam-gpu` on the device given to [`NeuralModel::attach_gpu`].
+    Gpu,
+}
+
+/// A loaded neural appearance model: `M_est` and `M_render`.
+///
+/// Load it once, estimate materials from photos ([`NeuralModel::estimate`]) and relight or
+/// evaluate them ([`crate::relight`], [`crate::NeuralBrdf`]).
+///
+/// ```
+/// # fn main() -> Result<(), nam::NamError> {
+/// let model = nam::NeuralModel::embedded()?;
+/// assert_eq!(model.config().param_channels, 64);
+/// # Ok(()) }
+/// ```
+#[derive(Debug)]
+pub struct NeuralModel {
+    weights: Weights,
+    cpu: Model,
+    fingerprint: String,
+    #[cfg(feature = "gpu")]
+    gpu: Option<std::sync::Mutex<nam_gpu::GpuNetwork>>,
+}
+
+impl NeuralModel {
+    /// The model embedded in this build (`models/default.safetensors`).
+    #[cfg(feature = "default-model")]
+    pub fn embedded() -> Result<Self> {
+        Self::from_bytes(EMBEDDED_MODEL, "embedded default model")
+    }
+
+    /// Reads and validates a model file (`.safetensors`, docs/FORMAT.md).
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let bytes = std::fs::read(path).map_err(|error| NamError::Io {
+            path: path.to_path_buf(),
+            error,
+        })?;
+        Self::from_bytes(&bytes, &path.display().to_string())
+    }
+
+    /// Parses and validates a model held in memory; `label` names it in errors.
+    pub fn from_bytes(bytes: &[u8], label: &str) -> Result<Self> {
+        let weights = Weights::from_bytes(bytes, label)?;
+        let fingerprint = hex_sha256(bytes);
+        Self::build(weights, fingerprint)
+    }
+
+    /// Wraps already validated weights (e.g. [`Weights::random`] in tests).
+    pub fn from_weights(weights: Weights) -> Result<Self> {
+        let fingerprint = hex_sha256(&weights.to_safetensors_bytes());
+        Self::build(weights, fingerprint)
+    }
+
+    fn build(weights: Weights, fingerprint: String) -> Result<Self> {
+        let cpu = Model::new(&weights)?;
+        Ok(Self {
+            weights,
+            cpu,
+            fingerprint,
+            #[cfg(feature = "gpu")]
+            gpu: None,
+        })
+    }
+
+    /// The architecture (width, log mode, layer sizes).
+    pub fn config(&self) -> &ModelConfig {
+        self.weights.config()
+    }
+
+    /// The validated weights (f32).
+    pub fn weights(&self) -> &Weights {
+        &self.weights
+    }
+
+    /// SHA-256 of the model file (hex); param maps record it so a material is never rendered
+    /// with a model that did not estimate it.
+    pub fn fingerprint(&self) -> &str {
+        &self.fingerprint
+    }
+
+    /// The CPU networks (always available; engines use them for per-query evaluation).
+    pub fn cpu(&self) -> &Model {
+        &self.cpu
+    }
+
+    /// Number of stored parameters (weights), all layers.
+    pub fn parameter_count(&self) -> usize {
+        self.weights
+            .tensors()
+            .values()
+            .map(|t| t.data().len())
+            .sum()
+    }
+
+    /// Runs estimation and image relighting on the caller's wgpu device from now on.
+    /// Weights are uploaded once here; pipelines are built lazily on first use.
+    /// `adapter_type` (`adapter.get_info().device_type`) selects kernel variants.
+    #[cfg(feature = "gpu")]
+    pub fn attach_gpu(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_type: wgpu::DeviceType,
+        precision: nam_gpu::Precision,
+    ) -> Result<()> {
+        let net = nam_gpu::GpuNetwork::new(device, queue, adapter_type, &self.weights, precision)?;
+        self.gpu = Some(std::sync::Mutex::new(net));
+        Ok(())
+    }
+
+    /// The backend [`NeuralModel::estimate`] and [`crate::relight`] use.
+    pub fn backend(&self) -> BackendKind {
+        #[cfg(feature = "gpu")]
+        if self.gpu.is_some() {
+            return BackendKind::Gpu;
+        }
+        BackendKind::Cpu
+    }
+
+    /// Runs `f` on the attached GPU network, if any.
+    #[cfg(feature = "gpu")]
+    pub(crate) fn with_gpu<T>(
+        &self,
+        f: impl FnOnce(&mut nam_gpu::GpuNetwork) -> Result<T>,
+    ) -> Option<Result<T>> {
+        let gpu = self.gpu.as_ref()?;
+        // A poisoned lock means an earlier call panicked mid-dispatch; the network's buffers
+        // hold no state across calls, so reusing it is safe.
+        let mut net = gpu
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        Some(f(&mut net))
+    }
+
+    /// Estimates the neural material of a photo (runs `M_est` once).
+    pub fn estimate(&self, photo: &Photo) -> Result<NeuralMaterial> {
+        let side = photo.side();
+        let input = photo.network_input(self.config().log_mode);
+        #[cfg(feature = "gpu")]
+        if let Some(res) = self.with_gpu(|net| Ok(net.estimate(&input, side, side)?)) {
+            let data = res?;
+            let map = ParamMap {
+                height: side,
+                width: side,
+                channels: self.config().param_channels,
+                data,
+            };
+            return NeuralMaterial::new(map, self.fingerprint.clone());
+        }
+        let map = self.cpu.unet.estimate(&input, side, side)?;
+        NeuralMaterial::new(map, self.fingerprint.clone())
+    }
+}
+
+fn hex_sha256(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}

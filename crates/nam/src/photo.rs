@@ -1,0 +1,206 @@
+//! Input photos: loading, validation and the 4-channel network input (docs/FORMAT.md).
+//!
+//! A photo is a square image of a near-planar material taken from the capture position
+//! (0, 0, d) with a co-located flash (DESIGN.md §3). Pixel values are *linear* RGB radiance
+//! in the network's convention (a white diffuse surface facing the flash reads ≈ 1).
+
+use crate::error::{NamError, Result};
+use nam_ggx::color::srgb_decode;
+use nam_ggx::geometry::capture_half_z;
+use nam_ggx::imageio::{FileKind, read_rgb};
+use nam_weights::LogMode;
+use std::path::Path;
+
+/// Largest accepted photo side in pixels. The U-Net's activations at C=64 take
+/// ≈ 64·(1+…)·H·W floats; 4096² is where that stops fitting a typical machine.
+pub const MAX_PHOTO_SIDE: usize = 4096;
+
+/// LDR photos are clamped just below 1 before log compression, as in training.
+const LDR_CLAMP: f32 = 0.999_999;
+
+/// A validated linear-RGB photo, row-major, channels interleaved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Photo {
+    side: usize,
+    rgb: Vec<f32>,
+}
+
+impl Photo {
+    /// Reads a PNG/JPEG (sRGB-decoded to linear; alpha dropped) or an EXR (linear HDR).
+    /// The image must be square (see [`Photo::from_linear_rgb`]); use
+    /// [`Photo::load_cropped`] to accept any aspect ratio.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        let (w, h, rgb) = read_linear(path.as_ref())?;
+        Self::from_linear_rgb(w, h, rgb).map_err(|e| e.in_file(path.as_ref()))
+    }
+
+    /// Like [`Photo::load`], but centre-crops a non-square image to its shorter side first.
+    pub fn load_cropped(path: impl AsRef<Path>) -> Result<Self> {
+        let (w, h, rgb) = read_linear(path.as_ref())?;
+        let (w, h, rgb) = center_crop(w, h, rgb);
+        Self::from_linear_rgb(w, h, rgb).map_err(|e| e.in_file(path.as_ref()))
+    }
+
+    /// Wraps linear RGB values (`rgb.len() == 3·width·height`). Errors on a non-square or
+    /// empty image, a side above [`MAX_PHOTO_SIDE`], or any NaN/Inf value. Negative values
+    /// (noise in HDR files) are kept; the network input clamps them to 0.
+    pub fn from_linear_rgb(width: usize, height: usize, rgb: Vec<f32>) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(NamError::Photo("the photo has no pixels".into()));
+        }
+        if width != height {
+            return Err(NamError::Photo(format!(
+                "the photo is {width}×{height} (W×H) but must be square: the material spans \
+                 [−1,1]² seen from the capture position (crop it, e.g. `--crop` in nam-cli)"
+            )));
+        }
+        if width > MAX_PHOTO_SIDE {
+            return Err(NamError::Photo(format!(
+                "the photo is {width}×{height}; the largest supported side is {MAX_PHOTO_SIDE} \
+                 (resize it)"
+            )));
+        }
+        if rgb.len() != width * height * 3 {
+            return Err(NamError::Photo(format!(
+                "expected {} RGB values for {width}×{height}, got {}",
+                width * height * 3,
+                rgb.len()
+            )));
+        }
+        if let Some(k) = rgb.iter().position(|v| !v.is_finite()) {
+            let px = k / 3;
+            return Err(NamError::Photo(format!(
+                "pixel (row {}, col {}) is not finite ({})",
+                px / width,
+                px % width,
+                rgb[k]
+            )));
+        }
+        Ok(Self { side: width, rgb })
+    }
+
+    /// Side length in pixels (photos are square).
+    pub fn side(&self) -> usize {
+        self.side
+    }
+
+    /// Linear RGB values, row-major, interleaved.
+    pub fn rgb(&self) -> &[f32] {
+        &self.rgb
+    }
+
+    /// Resamples to `side`×`side` with a box filter on downscale and bilinear on upscale
+    /// (in linear space, so highlights keep their energy).
+    pub fn resized(&self, side: usize) -> Result<Self> {
+        if side == 0 || side > MAX_PHOTO_SIDE {
+            return Err(NamError::Photo(format!(
+                "resize target {side} is outside 1..={MAX_PHOTO_SIDE}"
+            )));
+        }
+        let buf = image::ImageBuffer::<image::Rgb<f32>, Vec<f32>>::from_raw(
+            self.side as u32,
+            self.side as u32,
+            self.rgb.clone(),
+        )
+        .ok_or_else(|| NamError::Photo("internal: photo buffer size".into()))?;
+        let filter = if side < self.side {
+            image::imageops::FilterType::Triangle
+        } else {
+            image::imageops::FilterType::CatmullRom
+        };
+        let out = image::imageops::resize(&buf, side as u32, side as u32, filter);
+        Self::from_linear_rgb(side, side, out.into_raw())
+    }
+
+    /// The 4-channel network input, CHW (`[4, side, side]`); see [`network_input`].
+    pub fn network_input(&self, mode: LogMode) -> Vec<f32> {
+        network_input(&self.rgb, self.side, self.side, mode)
+    }
+}
+
+/// The 4-channel network input, CHW (`[4, height, width]`), from linear RGB (HWC):
+/// `ln(1 + clamp(rgb))` per the model's log mode, and the capture half-vector z
+/// (docs/FORMAT.md). `rgb.len()` must be `3·height·width`.
+pub fn network_input(rgb: &[f32], height: usize, width: usize, mode: LogMode) -> Vec<f32> {
+    let n = height * width;
+    debug_assert_eq!(rgb.len(), 3 * n);
+    let mut out = vec![0.0f32; 4 * n];
+    for (k, px) in rgb.chunks_exact(3).enumerate().take(n) {
+        for c in 0..3 {
+            let v = match mode {
+                LogMode::Ldr => px[c].clamp(0.0, LDR_CLAMP),
+                LogMode::Hdr => px[c].max(0.0),
+            };
+            out[c * n + k] = v.ln_1p();
+        }
+        out[3 * n + k] = capture_half_z(k / width, k % width, height, width) as f32;
+    }
+    out
+}
+
+/// Reads any supported image as linear RGB: LDR files are sRGB-decoded.
+fn read_linear(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+    let (img, kind) = read_rgb(path)?;
+    let (w, h) = (img.width(), img.height());
+    let mut rgb = img.into_vec();
+    if kind == FileKind::Ldr {
+        rgb.iter_mut().for_each(|v| *v = srgb_decode(*v));
+    }
+    Ok((w, h, rgb))
+}
+
+fn center_crop(w: usize, h: usize, rgb: Vec<f32>) -> (usize, usize, Vec<f32>) {
+    if w == h {
+        return (w, h, rgb);
+    }
+    let s = w.min(h);
+    let (x0, y0) = ((w - s) / 2, (h - s) / 2);
+    let mut out = Vec::with_capacity(s * s * 3);
+    for i in y0..y0 + s {
+        out.extend_from_slice(&rgb[(i * w + x0) * 3..(i * w + x0 + s) * 3]);
+    }
+    (s, s, out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn non_square_photo_is_rejected_and_crop_makes_it_square() {
+        let err = Photo::from_linear_rgb(4, 2, vec![0.5; 24]).unwrap_err();
+        assert!(err.to_string().contains("must be square"), "{err}");
+        let (w, h, rgb) = center_crop(4, 2, (0..24).map(|v| v as f32).collect());
+        assert_eq!((w, h), (2, 2));
+        // Columns 1..3 of both rows.
+        assert_eq!(rgb[0], 3.0);
+        assert_eq!(rgb[6], 15.0);
+    }
+
+    #[test]
+    fn nan_pixel_is_rejected_with_its_position() {
+        let mut rgb = vec![0.2; 3 * 9];
+        rgb[3 * 5 + 1] = f32::NAN;
+        let err = Photo::from_linear_rgb(3, 3, rgb).unwrap_err();
+        assert!(err.to_string().contains("row 1, col 2"), "{err}");
+    }
+
+    #[test]
+    fn huge_photo_is_rejected_before_touching_pixels() {
+        let err =
+            Photo::from_linear_rgb(MAX_PHOTO_SIDE + 1, MAX_PHOTO_SIDE + 1, Vec::new()).unwrap_err();
+        assert!(err.to_string().contains("largest supported side"), "{err}");
+    }
+
+    #[test]
+    fn ldr_input_clamps_and_hdr_input_keeps_large_values() {
+        let p = Photo::from_linear_rgb(1, 1, vec![1e6, -3.0, 0.5]).expect("valid");
+        let ldr = p.network_input(LogMode::Ldr);
+        assert!((ldr[0] - LDR_CLAMP.ln_1p()).abs() < 1e-7);
+        assert_eq!(ldr[1], 0.0);
+        let hdr = p.network_input(LogMode::Hdr);
+        assert!((hdr[0] - 1e6f32.ln_1p()).abs() < 1e-5);
+        // A 1×1 photo's only pixel is the centre: half vector straight up.
+        assert!((hdr[3] - 1.0).abs() < 1e-7);
+    }
+}

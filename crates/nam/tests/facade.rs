@@ -1,0 +1,230 @@
+//! End-to-end tests of the embedding API on the tiny golden model and the embedded model.
+
+use glam::{Vec2, Vec3};
+use nam::geometry::{Light, View};
+use nam::{
+    BrdfQuery, LogMode, NeuralBrdf, NeuralMaterial, NeuralModel, Photo, Scene, ShadingFrame, Vec3d,
+    relight,
+};
+use nam_weights::TensorFile;
+use std::path::PathBuf;
+
+fn fixture(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/fixtures")
+        .join(name)
+}
+
+/// f32 round-off in ln_1p and the half-vector z (computed in f64 then rounded).
+const INPUT_TOL: f32 = 1e-6;
+/// Two CPU code paths (streamed point-light relight vs per-pixel triples) differ only in
+/// f32 rounding of the directions, which the top encoding octave (2^15·π) amplifies.
+const PATH_TOL: f32 = 2e-2;
+
+fn tiny() -> NeuralModel {
+    NeuralModel::from_file(fixture("net_tiny.safetensors")).expect("tiny model loads")
+}
+
+fn grey_material(model: &NeuralModel, side: usize) -> NeuralMaterial {
+    let rgb: Vec<f32> = (0..side * side * 3)
+        .map(|k| 0.1 + 0.5 * ((k % 7) as f32 / 7.0))
+        .collect();
+    let photo = Photo::from_linear_rgb(side, side, rgb).expect("valid photo");
+    model.estimate(&photo).expect("estimate")
+}
+
+fn point(x: f64, y: f64, z: f64) -> Vec3d {
+    Vec3d::from_array([x, y, z])
+}
+
+#[test]
+fn network_input_matches_torch_golden() {
+    let g = TensorFile::from_file(fixture("net_tiny_golden.safetensors")).expect("golden");
+    let photo = &g.tensors()["photo"];
+    let (h, w) = (photo.shape()[0], photo.shape()[1]);
+    let want = g.get("input", &[4, h, w]).expect("input");
+    let got = nam::network_input(photo.data(), h, w, LogMode::Ldr);
+    let worst = got
+        .iter()
+        .zip(want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max);
+    assert!(worst < INPUT_TOL, "worst |Δ| = {worst}");
+}
+
+#[test]
+fn material_round_trips_through_nam_file_and_rejects_other_models() {
+    let model = tiny();
+    let m = grey_material(&model, 12);
+    let dir = tempfile::tempdir().expect("tmp");
+    let path = dir.path().join("m.nam");
+    m.save(&path).expect("save");
+    let back = NeuralMaterial::load(&path).expect("load");
+    assert_eq!(back, m);
+    back.check_model(&model).expect("same model");
+    let other = NeuralModel::from_weights(
+        nam_weights::Weights::random(model.config().clone(), 7).expect("random"),
+    )
+    .expect("other model");
+    let err = back.check_model(&other).unwrap_err().to_string();
+    assert!(err.contains("not by this model"), "{err}");
+    // No temporary files are left next to the output.
+    let names: Vec<_> = std::fs::read_dir(dir.path())
+        .expect("ls")
+        .map(|e| e.expect("entry").file_name())
+        .collect();
+    assert_eq!(names, vec![std::ffi::OsString::from("m.nam")]);
+}
+
+#[test]
+fn corrupt_nam_file_is_a_clear_error() {
+    let model = tiny();
+    let bytes = grey_material(&model, 8).to_bytes();
+    for cut in [0, 7, 8, 100, bytes.len() - 1] {
+        let err = NeuralMaterial::from_bytes(&bytes[..cut], "cut.nam").unwrap_err();
+        assert!(err.to_string().contains("cut.nam"), "{err}");
+    }
+    let err = NeuralMaterial::from_bytes(
+        &std::fs::read(fixture("net_tiny.safetensors")).expect("read"),
+        "model.safetensors",
+    )
+    .unwrap_err();
+    assert!(
+        err.to_string().contains("not a .nam file") || err.to_string().contains("params"),
+        "{err}"
+    );
+}
+
+#[test]
+fn point_light_relight_matches_per_query_evaluation() {
+    let model = tiny();
+    let m = grey_material(&model, 10);
+    let scene = Scene::new(
+        Light::Point(point(1.0, -0.5, 3.0)),
+        View::Point(point(-0.3, 0.2, 4.0)),
+    );
+    let img = relight(&model, &m, &scene).expect("relight");
+    let brdf = NeuralBrdf::new(&model, &m).expect("bind");
+    let (h, w) = m.size();
+    let queries: Vec<BrdfQuery> = (0..h * w)
+        .map(|k| {
+            let p = nam::geometry::pixel_position(k / w, k % w, h, w);
+            let d = nam::geometry::directions_at(&scene.light, &scene.view, p)
+                .expect("dirs")
+                .cast::<f32>();
+            BrdfQuery {
+                uv: Vec2::new(
+                    ((k % w) as f32 + 0.5) / w as f32,
+                    ((k / w) as f32 + 0.5) / h as f32,
+                ),
+                wi: Vec3::from_array(d.wi.to_array()),
+                wo: Vec3::from_array(d.wo.to_array()),
+            }
+        })
+        .collect();
+    let f = brdf.eval(&queries).expect("eval");
+    for (k, fk) in f.iter().enumerate() {
+        let r = Vec3::from_slice(&img.data()[k * 3..k * 3 + 3]);
+        let want = *fk * std::f32::consts::PI;
+        assert!(
+            (r - want).abs().max_element() <= PATH_TOL * (1.0 + want.abs().max_element()),
+            "pixel {k}: {r} vs {want}"
+        );
+    }
+}
+
+#[test]
+fn light_or_view_below_the_surface_renders_black_and_eval_is_zero() {
+    let model = tiny();
+    let m = grey_material(&model, 8);
+    for (l, v) in [
+        (point(0.0, 0.0, -1.0), point(0.0, 0.0, 4.0)),
+        (point(0.0, 1.0, 4.0), point(0.0, 0.0, 0.0)),
+    ] {
+        let img =
+            relight(&model, &m, &Scene::new(Light::Point(l), View::Point(v))).expect("relight");
+        assert!(img.data().iter().all(|&x| x == 0.0));
+    }
+    let brdf = NeuralBrdf::new(&model, &m).expect("bind");
+    let q = |wi: Vec3, wo: Vec3| BrdfQuery {
+        uv: Vec2::splat(0.5),
+        wi,
+        wo,
+    };
+    let f = brdf
+        .eval(&[
+            q(Vec3::new(0.0, 0.6, -0.8), Vec3::Z),
+            q(Vec3::Z, Vec3::new(1.0, 0.0, 0.0)),
+        ])
+        .expect("eval");
+    assert_eq!(f, vec![Vec3::ZERO, Vec3::ZERO]);
+    assert!(brdf.eval(&[q(Vec3::ZERO, Vec3::Z)]).is_err());
+    assert!(
+        brdf.eval(&[BrdfQuery {
+            uv: Vec2::new(f32::NAN, 0.0),
+            wi: Vec3::Z,
+            wo: Vec3::Z
+        }])
+        .is_err()
+    );
+}
+
+#[test]
+fn world_space_eval_on_tilted_frame_equals_local_eval_and_sample_weight_is_f_over_pdf() {
+    let model = tiny();
+    let m = grey_material(&model, 8);
+    let brdf = NeuralBrdf::new(&model, &m).expect("bind");
+    let frame = ShadingFrame::from_normal(Vec3::new(0.3, -0.4, 0.8)).expect("frame");
+    let (wi_l, wo_l) = (
+        Vec3::new(0.2, 0.1, 0.97).normalize(),
+        Vec3::new(-0.4, 0.3, 0.87).normalize(),
+    );
+    let uv = Vec2::new(0.3, 0.7);
+    let world = brdf
+        .eval_world(&frame, uv, frame.to_world(wi_l), frame.to_world(wo_l))
+        .expect("world");
+    let local = brdf
+        .eval(&[BrdfQuery {
+            uv,
+            wi: wi_l,
+            wo: wo_l,
+        }])
+        .expect("local")[0];
+    assert!((world - local).abs().max_element() < PATH_TOL * (1.0 + local.max_element()));
+
+    let s = brdf
+        .sample(&[
+            (uv, wo_l, Vec2::new(0.25, 0.6)),
+            (uv, -wo_l, Vec2::new(0.5, 0.5)),
+        ])
+        .expect("sample");
+    let s0 = s[0].expect("wo above horizon");
+    assert!(s[1].is_none(), "wo below the horizon has no sample");
+    let f = brdf
+        .eval(&[BrdfQuery {
+            uv,
+            wi: s0.wi,
+            wo: wo_l,
+        }])
+        .expect("eval")[0];
+    assert!((s0.weight * s0.pdf - f).abs().max_element() < 1e-5 * (1.0 + f.max_element()));
+    assert!((brdf.pdf(wo_l, s0.wi) - s0.pdf).abs() < 1e-6);
+}
+
+#[test]
+fn embedded_model_estimates_and_relights_the_bundled_photo_to_finite_values() {
+    let model = NeuralModel::embedded().expect("embedded model");
+    let photo = Photo::load(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets/example_photo.png"),
+    )
+    .expect("bundled photo")
+    .resized(64)
+    .expect("resize");
+    let m = model.estimate(&photo).expect("estimate");
+    let scene = Scene::new(
+        Light::Point(point(1.0, 1.0, 3.5)),
+        View::Point(nam::geometry::capture_position()),
+    );
+    let img = relight(&model, &m, &scene).expect("relight");
+    assert!(img.data().iter().all(|v| v.is_finite() && *v >= 0.0));
+}
