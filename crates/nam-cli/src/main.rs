@@ -23,12 +23,15 @@ struct Cli {
 enum Command {
     /// Render a 4-panel GGX SVBRDF map (the analytic reference) for one light and view.
     RenderGgx(cmd::render_ggx::Args),
+    /// Estimate a photo's neural material and relight it for a new light and view.
+    Relight(cmd::relight::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::RenderGgx(args) => cmd::render_ggx::run(&args),
+        Command::Relight(args) => cmd::relight::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
