@@ -2,13 +2,17 @@
 //! (C = 8 and 16, random weights), and this machine's sgemm rate (1024³) in the
 //! same run, so network throughput can be reported as a fraction of it.
 //!
+//! The `specialisations` group times the DESIGN §9 fast paths against the
+//! general per-pixel relight in the same run (`cargo bench -p nam-model
+//! --bench cpu -- specialisations`).
+//!
 //! `cargo bench -p nam-model --bench cpu` (threads: rayon default = all cores;
 //! set RAYON_NUM_THREADS=2 to match train_py/bench_torch.py).
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use nam_model::{ParamMap, RenderNet, UNet, matmul};
+use nam_model::{ParamMap, RenderNet, Roi, Source, UNet, matmul};
 use nam_weights::{ModelConfig, Weights};
 
 /// Multiply-adds per pixel of M_render after folding render.l0·l1 (DESIGN §4
@@ -76,5 +80,64 @@ fn benches(c: &mut Criterion) {
     );
 }
 
-criterion_group!(cpu, benches);
+/// DESIGN §9 specialisations against the general per-pixel path, same run:
+/// general point relight, one-shot directional + orthographic, `prepare`
+/// (`W_p·p` once), prepared point and directional relights, a 64² ROI, a
+/// batch of 4,096 (texel, ωi, ωo) queries, and the general path without the
+/// `render.l0·l1` fold.
+fn specialisations(c: &mut Criterion) {
+    let w = Weights::random(ModelConfig::standard(8), 1).expect("standard config is valid");
+    let net = RenderNet::new(&w).expect("random weights are complete");
+    let unfolded = RenderNet::new_unfolded(&w).expect("complete");
+    let map = param_map(256, 256);
+    let prep = net.prepare(&map).expect("valid map");
+    let light = [1.5, 1.0, 3.5];
+    let view = [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE];
+    let (l, v) = (Source::Point(light), Source::Point(view));
+    let wi = nam_model::geometry::direction([0.0; 3], light);
+    let (dl, dv) = (Source::Distant(wi), Source::Distant([0.0, 0.0, 1.0]));
+    let full = Roi::full(256, 256);
+    let mut g = c.benchmark_group("specialisations");
+    g.sample_size(10);
+    g.bench_function("general_point_256", |b| {
+        b.iter(|| net.relight(black_box(&map), light, view))
+    });
+    g.bench_function("general_point_256_unfolded", |b| {
+        b.iter(|| unfolded.relight(black_box(&map), light, view))
+    });
+    g.bench_function("directional_ortho_256", |b| {
+        b.iter(|| net.relight_directional(black_box(&map), wi, [0.0, 0.0, 1.0]))
+    });
+    g.bench_function("prepare_256", |b| b.iter(|| net.prepare(black_box(&map))));
+    g.bench_function("prepared_point_256", |b| {
+        b.iter(|| net.relight_prepared(black_box(&prep), l, v, full))
+    });
+    g.bench_function("prepared_directional_256", |b| {
+        b.iter(|| net.relight_prepared(black_box(&prep), dl, dv, full))
+    });
+    let roi = Roi {
+        row: 96,
+        col: 96,
+        height: 64,
+        width: 64,
+    };
+    g.bench_function("prepared_point_roi_64", |b| {
+        b.iter(|| net.relight_prepared(black_box(&prep), l, v, roi))
+    });
+    let n = 4096;
+    let texels: Vec<usize> = (0..n).map(|q| (q * 7919) % (256 * 256)).collect();
+    let qwi: Vec<[f32; 3]> = (0..n)
+        .map(|q| nam_model::geometry::direction([0.0; 3], [(q % 61) as f32 / 30.0 - 1.0, 0.4, 1.0]))
+        .collect();
+    let qwo: Vec<[f32; 3]> = (0..n)
+        .map(|q| nam_model::geometry::direction([0.0; 3], [0.2, (q % 53) as f32 / 26.0 - 1.0, 1.0]))
+        .collect();
+    let mut out = vec![0.0f32; n * 3];
+    g.bench_function("prepared_queries_4096", |b| {
+        b.iter(|| net.render_log_prepared(black_box(&prep), &texels, &qwi, &qwo, &mut out))
+    });
+    g.finish();
+}
+
+criterion_group!(cpu, benches, specialisations);
 criterion_main!(cpu);

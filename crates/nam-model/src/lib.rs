@@ -8,6 +8,11 @@
 //!   Also [`RenderNet::relight_directional`] (same ωi, ωo everywhere: ND_enc
 //!   runs once, DESIGN §9) and [`RenderNet::with_bf16`] (opt-in bf16 products,
 //!   f32 sums, AVX-512 BF16; check [`bf16_supported`]).
+//! * [`PreparedMaterial`] — [`RenderNet::prepare`] computes the params' part
+//!   `W_p·p` of the first render layer once per material; then
+//!   [`RenderNet::relight_prepared`] relights any [`Roi`] for point or distant
+//!   light and viewer ([`Source`]), and [`RenderNet::render_log_prepared`]
+//!   evaluates arbitrary (texel, ωi, ωo) query batches for engines.
 //! * [`Model`] — both, built from one [`nam_weights::Weights`].
 //! * [`reference`](mod@reference) — readable loops with f32 or f64 accumulation, the yardstick
 //!   for the fast path.
@@ -27,6 +32,7 @@ mod error;
 pub mod geometry;
 pub mod input;
 mod param_file;
+mod prepared;
 pub mod reference;
 mod render;
 mod sgemm;
@@ -34,6 +40,7 @@ mod unet;
 
 pub use bf16::bf16_supported;
 pub use error::{ModelError, Result};
+pub use prepared::{PreparedMaterial, Roi, Source};
 pub use render::{DEFAULT_TILE, ParamMap, RenderNet, Rgb, radiance_from_log};
 pub use unet::{MAX_SIDE, UNet};
 

@@ -1,7 +1,17 @@
 //! `M_render`, fast path: positional encoding → ND_enc → render MLP, fused per
-//! cache-sized tile of pixels/queries, GEMMs through the blocked `gemm` crate,
-//! rayon over tiles. Peak extra memory is `threads × tile scratch`, independent
-//! of the image size.
+//! cache-sized tile of pixels/queries, GEMMs through [`crate::sgemm`], rayon
+//! over tiles. Peak extra memory is `threads × tile scratch`, independent of
+//! the image size.
+//!
+//! Every path goes through one tile kernel ([`RenderNet::run_tile`]) that
+//! splits the first render layer `W·[p, f]` into a material part `W_p·p` and a
+//! direction part `W_d·f` (DESIGN §9):
+//!
+//! * the material part comes from the param map (a GEMM with k = 64) or from a
+//!   [`PreparedMaterial`](crate::PreparedMaterial) (precomputed once, copied);
+//! * the direction part is the per-query ND_enc output (a GEMM with k = 32,
+//!   accumulated), caller-given features, or one constant vector when ωi, ωo
+//!   are the same at every pixel (directional light, orthographic view).
 
 use nam_weights::Weights;
 use rayon::prelude::*;
@@ -66,22 +76,17 @@ impl Dense {
         }
     }
 
-    /// `y[n×out] (ld ldy) = act(x[n×inp] (ld ldx) · Wᵀ)`.
-    fn forward(&self, n: usize, x: &[f32], ldx: usize, y: &mut [f32], ldy: usize, threads: usize) {
-        sgemm(
-            n,
-            self.out,
-            self.inp,
-            Mat { data: x, ld: ldx },
-            Mat {
-                data: &self.wt,
-                ld: self.out,
-            },
-            y,
-            ldy,
-            false,
-            threads,
-        );
+    /// `Wᵀ` from input row `k0` on, as a GEMM operand: the part of the layer
+    /// that sees inputs `k0..`.
+    pub(crate) fn rows_from(&self, k0: usize) -> Mat<'_> {
+        Mat {
+            data: &self.wt[k0 * self.out..],
+            ld: self.out,
+        }
+    }
+
+    /// The activation, in place, on `n` rows of `y` (leading dimension `ldy`).
+    pub(crate) fn activate(&self, n: usize, y: &mut [f32], ldy: usize) {
         if let Some(s) = self.slope {
             for r in 0..n {
                 for v in &mut y[r * ldy..r * ldy + self.out] {
@@ -92,25 +97,112 @@ impl Dense {
     }
 }
 
+/// A layer the tile chain can run: f32 ([`Dense`]) or bf16 ([`Bf16Dense`]).
+trait Layer {
+    fn width(&self) -> usize;
+    /// `y[n×out] (ld ldy) = act(x[n×inp] (ld ldx) · Wᵀ)`, single-threaded.
+    fn run(&self, n: usize, x: &[f32], ldx: usize, y: &mut [f32], ldy: usize, pairs: &mut Vec<u32>);
+}
+
+impl Layer for Dense {
+    fn width(&self) -> usize {
+        self.out
+    }
+
+    fn run(&self, n: usize, x: &[f32], ldx: usize, y: &mut [f32], ldy: usize, _: &mut Vec<u32>) {
+        sgemm(
+            n,
+            self.out,
+            self.inp,
+            Mat { data: x, ld: ldx },
+            self.rows_from(0),
+            y,
+            ldy,
+            false,
+            1,
+        );
+        self.activate(n, y, ldy);
+    }
+}
+
+impl Layer for Bf16Dense {
+    fn width(&self) -> usize {
+        self.out()
+    }
+
+    fn run(
+        &self,
+        n: usize,
+        x: &[f32],
+        ldx: usize,
+        y: &mut [f32],
+        ldy: usize,
+        pairs: &mut Vec<u32>,
+    ) {
+        self.forward(n, x, ldx, y, ldy, pairs);
+    }
+}
+
+/// Where a tile's material part `W_p·p` of the first render layer comes from.
+#[derive(Clone, Copy)]
+pub(crate) enum Base<'a> {
+    /// Param rows (`texels × param_channels`): one GEMM per tile.
+    Params(&'a [f32]),
+    /// Precomputed `W_p·p` rows (`texels × hidden`): copied.
+    Prepared(&'a [f32]),
+}
+
+/// Where the direction features of output `g` come from.
+pub(crate) enum Dirs<'a, F> {
+    /// The direction triple `[ωi, ωo, ωh]` of output `g`: encoding and ND_enc per query.
+    Each(F),
+    /// ND_enc output rows given by the caller (`outputs × nd_len`).
+    Features(&'a [f32]),
+    /// One precomputed `W_d·ND_enc(…)` vector (`hidden`) for every output.
+    Constant(&'a [f32]),
+}
+
+/// The `F` of a [`Dirs`] that is not [`Dirs::Each`].
+pub(crate) type NoDirs = fn(usize) -> [f32; 9];
+
 /// `M_render` ready to run: ND_enc layers and the render MLP with `render.l0`
 /// and `render.l1` folded into one matrix (no activation between them).
+///
+/// Linear-layer folding (DESIGN §4, §9): the only other pair of consecutive
+/// layers without an activation between them is ND_enc's last layer
+/// (594→32) feeding the direction columns of the first render layer (32→128).
+/// It is deliberately **not** folded: the folded 594→128 matrix costs 76,032
+/// multiply-adds per query against 594·32 + 32·128 = 23,104 unfolded (3.3×
+/// more), and in the directional path both run once per image anyway.
+/// Folding `render.l0·l1` (96·128 + 128·128 = 28,672 → 96·128 = 12,288 per
+/// pixel) lowers the cost and is applied; [`RenderNet::new_unfolded`] keeps
+/// them apart to measure and test it.
 #[derive(Debug, Clone)]
 pub struct RenderNet {
-    octaves: usize,
-    params: usize,
-    nd: Vec<Dense>,
-    render: Vec<Dense>,
-    tile: usize,
-    /// bf16 twins of `nd` and `render` when [`RenderNet::with_bf16`] was called.
+    pub(crate) octaves: usize,
+    pub(crate) params: usize,
+    pub(crate) nd: Vec<Dense>,
+    /// `render[0]` is the first render layer `[params, nd] → hidden`.
+    pub(crate) render: Vec<Dense>,
+    pub(crate) tile: usize,
+    /// bf16 twins of `nd` and of `render[1..]` when [`RenderNet::with_bf16`]
+    /// was called (the first render layer always stays f32).
     bf16: Option<(Vec<Bf16Dense>, Vec<Bf16Dense>)>,
+    /// Hash of the first render layer: ties a prepared material to this net.
+    pub(crate) first_id: u64,
 }
 
 /// Per-thread scratch of one tile.
-struct Scratch {
+pub(crate) struct Scratch {
     enc: Vec<f32>,
     a: Vec<f32>,
     b: Vec<f32>,
+    /// Gathered param rows (`n × params`).
     x: Vec<f32>,
+    /// First render layer output (`n × hidden`).
+    h: Vec<f32>,
+    /// ND_enc output (`n × nd_len`).
+    nd: Vec<f32>,
     log: Vec<f32>,
     pairs: Vec<u32>,
 }
@@ -118,6 +210,17 @@ struct Scratch {
 impl RenderNet {
     /// Builds the network from validated weights (folding `render.l0·l1`, in f64).
     pub fn new(weights: &Weights) -> Result<Self> {
+        Self::build(weights, true)
+    }
+
+    /// Like [`Self::new`] but keeps `render.l0` and `render.l1` as two layers,
+    /// as stored: the same function with 16,384 more multiply-adds per pixel.
+    /// For measuring and testing the fold; use [`Self::new`] otherwise.
+    pub fn new_unfolded(weights: &Weights) -> Result<Self> {
+        Self::build(weights, false)
+    }
+
+    fn build(weights: &Weights, fold: bool) -> Result<Self> {
         let cfg = weights.config();
         let nd_widths = &cfg.nd_enc;
         let nd_layers = nd_widths.len() - 1;
@@ -141,22 +244,38 @@ impl RenderNet {
         };
         let w0 = weights.get("render.l0.weight", &[r[1], r[0]])?;
         let w1 = weights.get("render.l1.weight", &[r[2], r[1]])?;
-        // W01 = W1 · W0: [r2, r0].
-        let mut w01 = vec![0.0f32; r[2] * r[0]];
-        for o in 0..r[2] {
-            for i in 0..r[0] {
-                let mut s = 0.0f64;
-                for m in 0..r[1] {
-                    s += f64::from(w1[o * r[1] + m]) * f64::from(w0[m * r[0] + i]);
+        let mut render = if fold {
+            // W01 = W1 · W0: [r2, r0].
+            let mut w01 = vec![0.0f32; r[2] * r[0]];
+            for o in 0..r[2] {
+                for i in 0..r[0] {
+                    let mut s = 0.0f64;
+                    for m in 0..r[1] {
+                        s += f64::from(w1[o * r[1] + m]) * f64::from(w0[m * r[0] + i]);
+                    }
+                    w01[o * r[0] + i] = s as f32;
                 }
-                w01[o * r[0] + i] = s as f32;
             }
-        }
-        let mut render = vec![Dense::from_w(&w01, r[2], r[0], slope_of(1))];
+            vec![Dense::from_w(&w01, r[2], r[0], slope_of(1))]
+        } else {
+            vec![
+                Dense::from_w(w0, r[1], r[0], slope_of(0)),
+                Dense::from_w(w1, r[2], r[1], slope_of(1)),
+            ]
+        };
         for i in 2..layers {
             let w = weights.get(&format!("render.l{i}.weight"), &[r[i + 1], r[i]])?;
             render.push(Dense::from_w(w, r[i + 1], r[i], slope_of(i)));
         }
+        // FNV-1a over the first layer's bits and shape.
+        let first_id = render[0]
+            .wt
+            .iter()
+            .map(|v| u64::from(v.to_bits()))
+            .chain([render[0].inp as u64, render[0].out as u64])
+            .fold(0xcbf2_9ce4_8422_2325u64, |h, v| {
+                (h ^ v).wrapping_mul(0x0100_0000_01b3)
+            });
         Ok(Self {
             octaves: cfg.pe_octaves,
             params: cfg.param_channels,
@@ -164,6 +283,7 @@ impl RenderNet {
             render,
             tile: DEFAULT_TILE,
             bf16: None,
+            first_id,
         })
     }
 
@@ -175,7 +295,8 @@ impl RenderNet {
 
     /// Switches the fused paths ([`Self::relight`], [`Self::render_batch`], …) to
     /// bf16 products with f32 accumulation (AVX-512 BF16; ~2× faster, log-space
-    /// differences of order 1e-3). Errors when the CPU lacks the instructions.
+    /// differences of order 1e-3) for ND_enc and the render layers after the
+    /// first (which stays f32). Errors when the CPU lacks the instructions.
     pub fn with_bf16(mut self) -> Result<Self> {
         if !bf16_supported() {
             return Err(ModelError::Unsupported(
@@ -197,7 +318,7 @@ impl RenderNet {
                 })
                 .collect()
         };
-        self.bf16 = Some((twin(&self.nd), twin(&self.render)));
+        self.bf16 = Some((twin(&self.nd), twin(&self.render[1..])));
         Ok(self)
     }
 
@@ -221,6 +342,29 @@ impl RenderNet {
         self.nd.last().map_or(0, |l| l.out)
     }
 
+    /// Width of the first render layer's output (128): the values per texel
+    /// of a [`PreparedMaterial`](crate::PreparedMaterial).
+    pub fn hidden_len(&self) -> usize {
+        self.render[0].out
+    }
+
+    /// Multiply-adds per output pixel/query of a render path: everything
+    /// (`prepared = false, constant_directions = false`: the general path)
+    /// minus `W_p·p` when the material is prepared, minus the encoding's
+    /// ND_enc and `W_d·f` when ωi, ωo are the same for every output.
+    pub fn macs_per_output(&self, prepared: bool, constant_directions: bool) -> usize {
+        let first = &self.render[0];
+        let material = if prepared { 0 } else { self.params * first.out };
+        let directions = if constant_directions {
+            0
+        } else {
+            self.nd.iter().map(|l| l.inp * l.out).sum::<usize>()
+                + (first.inp - self.params) * first.out
+        };
+        let tail: usize = self.render[1..].iter().map(|l| l.inp * l.out).sum();
+        material + directions + tail
+    }
+
     fn max_hidden(&self) -> usize {
         self.nd
             .iter()
@@ -230,20 +374,25 @@ impl RenderNet {
             .unwrap_or(1)
     }
 
-    fn scratch(&self, n: usize) -> Scratch {
+    pub(crate) fn scratch(&self, n: usize) -> Scratch {
         Scratch {
             enc: vec![0.0; n * self.encoded_len()],
             a: vec![0.0; n * self.max_hidden()],
             b: vec![0.0; n * self.max_hidden()],
-            x: vec![0.0; n * (self.params + self.nd_len())],
+            x: vec![0.0; n * self.params],
+            h: vec![0.0; n * self.hidden_len()],
+            nd: vec![0.0; n * self.nd_len()],
             log: vec![0.0; n * 3],
             pairs: Vec::new(),
         }
     }
 
+    /// Runs `layers` on `n` rows of `input`, ping-ponging through `a` and `b`;
+    /// the last layer writes `last` (leading dimension `ldlast`). With no
+    /// layers the input is copied.
     #[allow(clippy::too_many_arguments)]
-    fn chain_bf16(
-        layers: &[Bf16Dense],
+    fn chain<L: Layer>(
+        layers: &[L],
         n: usize,
         input: &[f32],
         ldin: usize,
@@ -253,31 +402,32 @@ impl RenderNet {
         ldlast: usize,
         pairs: &mut Vec<u32>,
     ) {
-        let mut cur_in_a = false;
-        for (i, l) in layers.iter().enumerate() {
-            let is_last = i + 1 == layers.len();
-            if i == 0 {
-                if is_last {
-                    l.forward(n, input, ldin, last, ldlast, pairs);
-                } else {
-                    l.forward(n, input, ldin, a, l.out(), pairs);
-                    cur_in_a = true;
-                }
-                continue;
+        let Some((tail, body)) = layers.split_last() else {
+            for r in 0..n {
+                last[r * ldlast..r * ldlast + ldin]
+                    .copy_from_slice(&input[r * ldin..(r + 1) * ldin]);
             }
-            let ldx = layers[i - 1].out();
-            let (src, dst): (&[f32], &mut [f32]) = if cur_in_a {
-                (&*a, &mut *b)
-            } else {
-                (&*b, &mut *a)
+            return;
+        };
+        // Where the current activations are: `input`, `a` or `b`.
+        let mut in_a: Option<bool> = None;
+        let mut ld = ldin;
+        for l in body {
+            let (src, dst): (&[f32], &mut [f32]) = match in_a {
+                None => (input, &mut *a),
+                Some(true) => (&*a, &mut *b),
+                Some(false) => (&*b, &mut *a),
             };
-            if is_last {
-                l.forward(n, src, ldx, last, ldlast, pairs);
-            } else {
-                l.forward(n, src, ldx, dst, l.out(), pairs);
-                cur_in_a = !cur_in_a;
-            }
+            l.run(n, src, ld, dst, l.width(), pairs);
+            ld = l.width();
+            in_a = Some(in_a != Some(true));
         }
+        let src: &[f32] = match in_a {
+            None => input,
+            Some(true) => a,
+            Some(false) => b,
+        };
+        tail.run(n, src, ld, last, ldlast, pairs);
     }
 
     /// Positional encoding of `n` queries into `out` (`n × encoded_len`), ωh computed.
@@ -291,45 +441,6 @@ impl RenderNet {
         Ok(())
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn chain(
-        layers: &[Dense],
-        n: usize,
-        input: &[f32],
-        ldin: usize,
-        a: &mut [f32],
-        b: &mut [f32],
-        last: &mut [f32],
-        ldlast: usize,
-        threads: usize,
-    ) {
-        let mut cur_in_a = false;
-        for (i, l) in layers.iter().enumerate() {
-            let is_last = i + 1 == layers.len();
-            if i == 0 {
-                if is_last {
-                    l.forward(n, input, ldin, last, ldlast, threads);
-                } else {
-                    l.forward(n, input, ldin, a, l.out, threads);
-                    cur_in_a = true;
-                }
-                continue;
-            }
-            let ldx = layers[i - 1].out;
-            let (src, dst): (&[f32], &mut [f32]) = if cur_in_a {
-                (&*a, &mut *b)
-            } else {
-                (&*b, &mut *a)
-            };
-            if is_last {
-                l.forward(n, src, ldx, last, ldlast, threads);
-            } else {
-                l.forward(n, src, ldx, dst, l.out, threads);
-                cur_in_a = !cur_in_a;
-            }
-        }
-    }
-
     /// Positional encoding of `n` precomputed direction triples `[ωi, ωo, ωh]`
     /// (`dirs`: `n × 9`) into `out` (`n × encoded_len`).
     pub fn encode_triples(&self, dirs: &[f32], out: &mut [f32]) -> Result<()> {
@@ -338,30 +449,204 @@ impl RenderNet {
         let e = self.encoded_len();
         check_len("encoded", n * e, out.len())?;
         for (d, o) in dirs.chunks_exact(9).zip(out.chunks_exact_mut(e)) {
-            let mut c = [0.0f32; 9];
-            c.copy_from_slice(d);
-            encode_into(&c, self.octaves, o);
+            encode_into(&triple(d), self.octaves, o);
         }
         Ok(())
     }
 
-    /// ND_enc of `n` encoded queries (`n × 297` → `n × 32`).
+    /// Runs `f(scratch, first index, output chunk)` over tiles of `out`
+    /// (`width` values per item) in parallel, one scratch per worker.
+    pub(crate) fn tiles(
+        &self,
+        out: &mut [f32],
+        width: usize,
+        f: impl Fn(&mut Scratch, usize, &mut [f32]) + Sync + Send,
+    ) {
+        let n = out.len() / width;
+        let t = self.tile.min(n.max(1));
+        out.par_chunks_mut(t * width)
+            .enumerate()
+            .for_each_init(|| self.scratch(t), |s, (ti, dst)| f(s, ti * t, dst));
+    }
+
+    /// ND_enc of `n` encoded queries (`n × 297` → `n × 32`), f32.
     pub fn nd_enc(&self, encoded: &[f32], out: &mut [f32]) -> Result<()> {
         let e = self.encoded_len();
         let d = self.nd_len();
         let n = encoded.len() / e;
         check_len("encoded", n * e, encoded.len())?;
         check_len("nd out", n * d, out.len())?;
-        let t = self.tile.min(n.max(1));
-        out.par_chunks_mut(t * d).enumerate().for_each_init(
-            || self.scratch(t),
-            |s, (ti, dst)| {
-                let m = dst.len() / d;
-                let src = &encoded[ti * t * e..(ti * t + m) * e];
-                Self::chain(&self.nd, m, src, e, &mut s.a, &mut s.b, dst, d, 1);
-            },
-        );
+        self.tiles(out, d, |s, q0, dst| {
+            let m = dst.len() / d;
+            let src = &encoded[q0 * e..(q0 + m) * e];
+            Self::chain(
+                &self.nd,
+                m,
+                src,
+                e,
+                &mut s.a,
+                &mut s.b,
+                dst,
+                d,
+                &mut s.pairs,
+            );
+        });
         Ok(())
+    }
+
+    /// ND_enc features of `n` direction triples into `s.nd` (bf16 when active).
+    fn features_into(&self, s: &mut Scratch, n: usize, dir: impl Fn(usize) -> [f32; 9]) {
+        let e = self.encoded_len();
+        let d = self.nd_len();
+        for q in 0..n {
+            encode_into(&dir(q), self.octaves, &mut s.enc[q * e..(q + 1) * e]);
+        }
+        let Scratch {
+            enc,
+            a,
+            b,
+            nd,
+            pairs,
+            ..
+        } = s;
+        match &self.bf16 {
+            Some((nd16, _)) => Self::chain(nd16, n, enc, e, a, b, nd, d, pairs),
+            None => Self::chain(&self.nd, n, enc, e, a, b, nd, d, pairs),
+        }
+    }
+
+    /// The direction part `W_d · ND_enc(enc(ωi, ωo, ωh))` of the first render
+    /// layer for one direction pair (`hidden_len` values): what every pixel
+    /// shares under a directional light and an orthographic view.
+    pub(crate) fn constant_direction_part(&self, wi: [f32; 3], wo: [f32; 3]) -> Vec<f32> {
+        let mut s = self.scratch(1);
+        self.features_into(&mut s, 1, |_| direction_triple(wi, wo));
+        let h1 = self.hidden_len();
+        let mut c = vec![0.0f32; h1];
+        sgemm(
+            1,
+            h1,
+            self.nd_len(),
+            Mat {
+                data: &s.nd,
+                ld: self.nd_len(),
+            },
+            self.render[0].rows_from(self.params),
+            &mut c,
+            h1,
+            false,
+            1,
+        );
+        c
+    }
+
+    /// The fused pipeline on outputs `q0..q0 + n`: `texel(g)` is the material
+    /// row of output `g`; log-space results land in `s.log[..n·3]`.
+    pub(crate) fn run_tile<F: Fn(usize) -> [f32; 9]>(
+        &self,
+        s: &mut Scratch,
+        (q0, n): (usize, usize),
+        texel: &dyn Fn(usize) -> usize,
+        base: Base<'_>,
+        dirs: &Dirs<'_, F>,
+    ) {
+        let first = &self.render[0];
+        let (p, d, h1) = (self.params, self.nd_len(), first.out);
+        // Direction features first: ND_enc uses the a/b scratch.
+        let feats: Option<&[f32]> = match dirs {
+            Dirs::Each(dir) => {
+                self.features_into(s, n, |q| dir(q0 + q));
+                None
+            }
+            Dirs::Features(f) => Some(&f[q0 * d..(q0 + n) * d]),
+            Dirs::Constant(_) => None,
+        };
+        let Scratch {
+            a,
+            b,
+            x,
+            h,
+            nd,
+            log,
+            pairs,
+            ..
+        } = s;
+        let h = &mut h[..n * h1];
+        // Material part W_p · p.
+        match base {
+            Base::Params(map) => {
+                for q in 0..n {
+                    let t = texel(q0 + q);
+                    x[q * p..(q + 1) * p].copy_from_slice(&map[t * p..(t + 1) * p]);
+                }
+                sgemm(
+                    n,
+                    h1,
+                    p,
+                    Mat { data: x, ld: p },
+                    first.rows_from(0),
+                    h,
+                    h1,
+                    false,
+                    1,
+                );
+            }
+            Base::Prepared(rows) => {
+                for q in 0..n {
+                    let t = texel(q0 + q);
+                    h[q * h1..(q + 1) * h1].copy_from_slice(&rows[t * h1..(t + 1) * h1]);
+                }
+            }
+        }
+        // Direction part W_d · f.
+        match dirs {
+            Dirs::Constant(c) => {
+                for row in h.chunks_exact_mut(h1) {
+                    for (v, c) in row.iter_mut().zip(c.iter()) {
+                        *v += c;
+                    }
+                }
+            }
+            Dirs::Each(_) | Dirs::Features(_) => {
+                let f = feats.unwrap_or(&nd[..n * d]);
+                sgemm(
+                    n,
+                    h1,
+                    d,
+                    Mat { data: f, ld: d },
+                    first.rows_from(p),
+                    h,
+                    h1,
+                    true,
+                    1,
+                );
+            }
+        }
+        first.activate(n, h, h1);
+        match &self.bf16 {
+            Some((_, tail16)) => Self::chain(tail16, n, h, h1, a, b, log, 3, pairs),
+            None => Self::chain(&self.render[1..], n, h, h1, a, b, log, 3, pairs),
+        }
+    }
+
+    /// Runs the fused pipeline for every output of `out` (`n × 3`, log space
+    /// or, with `radiance`, `max(expm1(y), 0)`), in parallel tiles.
+    pub(crate) fn run<F: Fn(usize) -> [f32; 9] + Sync>(
+        &self,
+        out: &mut [f32],
+        radiance: bool,
+        texel: &(dyn Fn(usize) -> usize + Sync),
+        base: Base<'_>,
+        dirs: &Dirs<'_, F>,
+    ) {
+        self.tiles(out, 3, |s, q0, dst| {
+            let m = dst.len() / 3;
+            self.run_tile(s, (q0, m), texel, base, dirs);
+            dst.copy_from_slice(&s.log[..m * 3]);
+            if radiance {
+                dst.iter_mut().for_each(|v| *v = radiance_from_log(*v));
+            }
+        });
     }
 
     /// Render MLP on precomputed features: `params` (`n × 64`) and `nd` (`n × 32`)
@@ -377,67 +662,9 @@ impl RenderNet {
         check_len("params", n * p, params.len())?;
         check_len("nd", n * d, nd.len())?;
         check_len("log out", n * 3, out_log.len())?;
-        let t = self.tile.min(n.max(1));
-        out_log.par_chunks_mut(t * 3).enumerate().for_each_init(
-            || self.scratch(t),
-            |s, (ti, dst)| {
-                let m = dst.len() / 3;
-                for q in 0..m {
-                    let g = ti * t + q;
-                    let row = &mut s.x[q * (p + d)..(q + 1) * (p + d)];
-                    row[..p].copy_from_slice(&params[g * p..(g + 1) * p]);
-                    row[p..].copy_from_slice(&nd[g * d..(g + 1) * d]);
-                }
-                Self::chain(&self.render, m, &s.x, p + d, &mut s.a, &mut s.b, dst, 3, 1);
-            },
-        );
+        let dirs = Dirs::<NoDirs>::Features(nd);
+        self.run(out_log, false, &|g| g, Base::Params(params), &dirs);
         Ok(())
-    }
-
-    /// The fused pipeline on one tile of `n` queries; directions from `dir(q)`.
-    fn run_tile(&self, s: &mut Scratch, params: &[f32], n: usize, dir: impl Fn(usize) -> [f32; 9]) {
-        let e = self.encoded_len();
-        let (p, d) = (self.params, self.nd_len());
-        for q in 0..n {
-            encode_into(&dir(q), self.octaves, &mut s.enc[q * e..(q + 1) * e]);
-            s.x[q * (p + d)..q * (p + d) + p].copy_from_slice(&params[q * p..(q + 1) * p]);
-        }
-        // ND_enc writes straight into columns p..p+d of the render input.
-        if let Some((nd16, render16)) = &self.bf16 {
-            let Scratch {
-                enc,
-                a,
-                b,
-                x,
-                log,
-                pairs,
-            } = s;
-            Self::chain_bf16(nd16, n, enc, e, a, b, &mut x[p..], p + d, pairs);
-            Self::chain_bf16(render16, n, x, p + d, a, b, log, 3, pairs);
-            return;
-        }
-        Self::chain(
-            &self.nd,
-            n,
-            &s.enc,
-            e,
-            &mut s.a,
-            &mut s.b,
-            &mut s.x[p..],
-            p + d,
-            1,
-        );
-        Self::chain(
-            &self.render,
-            n,
-            &s.x,
-            p + d,
-            &mut s.a,
-            &mut s.b,
-            &mut s.log,
-            3,
-            1,
-        );
     }
 
     /// Log-space output (`n × 3`) for `n` queries: `params` `n × 64`, directions
@@ -456,21 +683,8 @@ impl RenderNet {
         check_finite("params", params)?;
         check_finite("wi", wi.as_flattened())?;
         check_finite("wo", wo.as_flattened())?;
-        let t = self.tile.min(n.max(1));
-        out_log.par_chunks_mut(t * 3).enumerate().for_each_init(
-            || self.scratch(t),
-            |s, (ti, out)| {
-                let q0 = ti * t;
-                let m = out.len() / 3;
-                self.run_tile(
-                    s,
-                    &params[q0 * self.params..(q0 + m) * self.params],
-                    m,
-                    |q| direction_triple(wi[q0 + q], wo[q0 + q]),
-                );
-                out.copy_from_slice(&s.log[..m * 3]);
-            },
-        );
+        let dirs = Dirs::Each(|g: usize| direction_triple(wi[g], wo[g]));
+        self.run(out_log, false, &|g| g, Base::Params(params), &dirs);
         Ok(())
     }
 
@@ -488,25 +702,8 @@ impl RenderNet {
         check_len("log out", n * 3, out_log.len())?;
         check_finite("params", params)?;
         check_finite("dirs", dirs)?;
-        let t = self.tile.min(n.max(1));
-        out_log.par_chunks_mut(t * 3).enumerate().for_each_init(
-            || self.scratch(t),
-            |s, (ti, out)| {
-                let q0 = ti * t;
-                let m = out.len() / 3;
-                self.run_tile(
-                    s,
-                    &params[q0 * self.params..(q0 + m) * self.params],
-                    m,
-                    |q| {
-                        let mut c = [0.0f32; 9];
-                        c.copy_from_slice(&dirs[(q0 + q) * 9..(q0 + q + 1) * 9]);
-                        c
-                    },
-                );
-                out.copy_from_slice(&s.log[..m * 3]);
-            },
-        );
+        let each = Dirs::Each(|g: usize| triple(&dirs[g * 9..(g + 1) * 9]));
+        self.run(out_log, false, &|g| g, Base::Params(params), &each);
         Ok(())
     }
 
@@ -525,42 +722,33 @@ impl RenderNet {
         Ok(())
     }
 
-    /// Relights a whole param map for a point light at `light` and a viewer at
-    /// `view` (surface-frame units, DESIGN §3). Directions are computed per tile,
-    /// so memory beyond the output is bounded by the tile scratch.
-    pub fn relight(&self, map: &ParamMap, light: [f32; 3], view: [f32; 3]) -> Result<Rgb> {
+    /// Validates a param map for this network; returns its pixel count.
+    pub(crate) fn check_map(&self, map: &ParamMap) -> Result<usize> {
         check_len("param map channels", self.params, map.channels)?;
         let n = map.height * map.width;
         check_len("param map", n * self.params, map.data.len())?;
         check_finite("param map", &map.data)?;
+        Ok(n)
+    }
+
+    /// Relights a whole param map for a point light at `light` and a viewer at
+    /// `view` (surface-frame units, DESIGN §3): the general per-pixel path.
+    /// Directions are computed per tile, so memory beyond the output is bounded
+    /// by the tile scratch.
+    pub fn relight(&self, map: &ParamMap, light: [f32; 3], view: [f32; 3]) -> Result<Rgb> {
+        let n = self.check_map(map)?;
         check_finite("light", &light)?;
         check_finite("view", &view)?;
         if light[2] <= 0.0 || view[2] <= 0.0 {
             return Err(ModelError::BelowSurface);
         }
         let (h, w) = (map.height, map.width);
-        let t = self.tile.min(n.max(1));
+        let dirs = Dirs::Each(|g: usize| {
+            let pos = pixel_position(g / w, g % w, h, w);
+            direction_triple(direction(pos, light), direction(pos, view))
+        });
         let mut data = vec![0.0f32; n * 3];
-        data.par_chunks_mut(t * 3).enumerate().for_each_init(
-            || self.scratch(t),
-            |s, (ti, out)| {
-                let q0 = ti * t;
-                let m = out.len() / 3;
-                self.run_tile(
-                    s,
-                    &map.data[q0 * self.params..(q0 + m) * self.params],
-                    m,
-                    |q| {
-                        let idx = q0 + q;
-                        let pos = pixel_position(idx / w, idx % w, h, w);
-                        direction_triple(direction(pos, light), direction(pos, view))
-                    },
-                );
-                for (o, y) in out.iter_mut().zip(&s.log[..m * 3]) {
-                    *o = radiance_from_log(*y);
-                }
-            },
-        );
+        self.run(&mut data, true, &|g| g, Base::Params(&map.data), &dirs);
         Ok(Rgb {
             height: h,
             width: w,
@@ -569,48 +757,19 @@ impl RenderNet {
     }
 
     /// Relights with the same (ωi, ωo) at every pixel — a directional light and
-    /// an orthographic view (DESIGN §9): the encoding and ND_enc run once, and
-    /// only the render MLP runs per pixel (~7× fewer FLOPs than [`Self::relight`]).
+    /// an orthographic view (DESIGN §9): the encoding, ND_enc and the direction
+    /// part of the first render layer run once, and per pixel only `W_p·p` and
+    /// the remaining render layers (~9× fewer FLOPs than [`Self::relight`]).
+    /// For repeated relights of one material see
+    /// [`Self::relight_prepared`](crate::RenderNet::relight_prepared).
     pub fn relight_directional(&self, map: &ParamMap, wi: [f32; 3], wo: [f32; 3]) -> Result<Rgb> {
-        check_len("param map channels", self.params, map.channels)?;
-        let n = map.height * map.width;
-        check_len("param map", n * self.params, map.data.len())?;
-        check_finite("param map", &map.data)?;
+        let n = self.check_map(map)?;
         check_finite("wi", &wi)?;
         check_finite("wo", &wo)?;
-        let mut enc = vec![0.0f32; self.encoded_len()];
-        self.encode(&[wi], &[wo], &mut enc)?;
-        let mut nd = vec![0.0f32; self.nd_len()];
-        self.nd_enc(&enc, &mut nd)?;
-        let (p, d) = (self.params, self.nd_len());
-        let t = self.tile.min(n.max(1));
+        let c = self.constant_direction_part(wi, wo);
         let mut data = vec![0.0f32; n * 3];
-        data.par_chunks_mut(t * 3).enumerate().for_each_init(
-            || self.scratch(t),
-            |s, (ti, out)| {
-                let q0 = ti * t;
-                let m = out.len() / 3;
-                for q in 0..m {
-                    let row = &mut s.x[q * (p + d)..(q + 1) * (p + d)];
-                    row[..p].copy_from_slice(&map.data[(q0 + q) * p..(q0 + q + 1) * p]);
-                    row[p..].copy_from_slice(&nd);
-                }
-                Self::chain(
-                    &self.render,
-                    m,
-                    &s.x,
-                    p + d,
-                    &mut s.a,
-                    &mut s.b,
-                    &mut s.log,
-                    3,
-                    1,
-                );
-                for (o, y) in out.iter_mut().zip(&s.log[..m * 3]) {
-                    *o = radiance_from_log(*y);
-                }
-            },
-        );
+        let dirs = Dirs::<NoDirs>::Constant(&c);
+        self.run(&mut data, true, &|g| g, Base::Params(&map.data), &dirs);
         Ok(Rgb {
             height: map.height,
             width: map.width,
@@ -636,6 +795,13 @@ impl RenderNet {
             data,
         })
     }
+}
+
+/// The 9 values of a `[ωi, ωo, ωh]` row.
+fn triple(d: &[f32]) -> [f32; 9] {
+    let mut c = [0.0f32; 9];
+    c.copy_from_slice(d);
+    c
 }
 
 /// `max(expm1(y), 0)`: log-space network output to radiance (NaN maps to 0).

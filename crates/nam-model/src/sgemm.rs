@@ -9,6 +9,64 @@ pub(crate) struct Mat<'a> {
     pub ld: usize,
 }
 
+/// Elements a `rows × cols` operand with leading dimension `ld` spans.
+fn span(rows: usize, cols: usize, ld: usize) -> usize {
+    if rows == 0 || cols == 0 {
+        0
+    } else {
+        (rows - 1) * ld + cols
+    }
+}
+
+/// `dst[i·rs + j·cs] (+)= (A·B)[i, j]` for `i < m`, `j < n`, with `k ≥ 1`.
+/// The one unsafe call: every addressed element is bounds-checked first, and
+/// `dst` is borrowed mutably so nothing aliases the destination. Callers keep
+/// the destination strides injective (`rs ≥ n` with `cs = 1`, or the mirror).
+fn gemm_strided(
+    (m, n, k): (usize, usize, usize),
+    a: Mat<'_>,
+    b: Mat<'_>,
+    dst: &mut [f32],
+    (rs, cs): (usize, usize),
+    accumulate: bool,
+    threads: usize,
+) {
+    assert!(m > 0 && n > 0 && k > 0);
+    assert!(a.ld >= k && a.data.len() >= span(m, k, a.ld));
+    assert!(b.ld >= n && b.data.len() >= span(k, n, b.ld));
+    assert!(dst.len() > (m - 1) * rs + (n - 1) * cs);
+    let par = if threads > 1 {
+        gemm::Parallelism::Rayon(threads)
+    } else {
+        gemm::Parallelism::None
+    };
+    // SAFETY: the asserts above bound every element addressed by (m, n, k)
+    // and the strides inside the slices; `dst` is an exclusive borrow.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            cs as isize,
+            rs as isize,
+            accumulate,
+            a.data.as_ptr(),
+            1,
+            a.ld as isize,
+            b.data.as_ptr(),
+            1,
+            b.ld as isize,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            par,
+        );
+    }
+}
+
 /// `C[m×n] = A[m×k] · B[k×n]` (or `C += A·B` when `accumulate`), all row-major
 /// with leading dimensions `a.ld`, `b.ld`, `ldc`. `threads > 1` lets the `gemm`
 /// crate split the product over rayon.
@@ -31,16 +89,7 @@ pub(crate) fn sgemm(
     if m == 0 || n == 0 {
         return;
     }
-    let need = |rows: usize, cols: usize, ld: usize| {
-        if rows == 0 || cols == 0 {
-            0
-        } else {
-            (rows - 1) * ld + cols
-        }
-    };
-    assert!(a.data.len() >= need(m, k, a.ld) && (k == 0 || a.ld >= k));
-    assert!(b.data.len() >= need(k, n, b.ld) && (k == 0 || b.ld >= n));
-    assert!(c.len() >= need(m, n, ldc) && ldc >= n);
+    assert!(ldc >= n && c.len() >= span(m, n, ldc));
     if k == 0 {
         if !accumulate {
             for r in 0..m {
@@ -49,43 +98,12 @@ pub(crate) fn sgemm(
         }
         return;
     }
-    let par = if threads > 1 {
-        gemm::Parallelism::Rayon(threads)
-    } else {
-        gemm::Parallelism::None
-    };
-    // SAFETY: the asserts above guarantee every element addressed by
-    // (m, n, k) and the strides lies inside the slices; `c` is borrowed
-    // mutably so nothing aliases the destination.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            c.as_mut_ptr(),
-            1,
-            ldc as isize,
-            accumulate,
-            a.data.as_ptr(),
-            1,
-            a.ld as isize,
-            b.data.as_ptr(),
-            1,
-            b.ld as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            par,
-        );
-    }
+    gemm_strided((m, n, k), a, b, c, (ldc, 1), accumulate, threads);
 }
 
 /// Like [`sgemm`] but writes `C` transposed: `ct[j·ldct + i] = (A·B)[i, j]`.
 /// With few output columns (n < 16) this puts the gemm kernel's SIMD lanes
 /// along the long `m` dimension instead of the short `n` one.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn sgemm_into_transposed(
     m: usize,
     n: usize,
@@ -98,35 +116,8 @@ pub(crate) fn sgemm_into_transposed(
     if m == 0 || n == 0 {
         return;
     }
-    assert!(k > 0 && a.ld >= k && b.ld >= n && ldct >= m);
-    assert!(a.data.len() >= (m - 1) * a.ld + k);
-    assert!(b.data.len() >= (k - 1) * b.ld + n);
-    assert!(ct.len() >= (n - 1) * ldct + m);
-    // SAFETY: as in `sgemm`, with the destination strides swapped (row stride 1,
-    // column stride ldct); the asserts bound every addressed element.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            ct.as_mut_ptr(),
-            ldct as isize,
-            1,
-            false,
-            a.data.as_ptr(),
-            1,
-            a.ld as isize,
-            b.data.as_ptr(),
-            1,
-            b.ld as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
+    assert!(ldct >= m);
+    gemm_strided((m, n, k), a, b, ct, (1, ldct), false, 1);
 }
 
 /// Plain triple loop used to test [`sgemm`].
@@ -197,6 +188,35 @@ mod tests {
             for j in 0..n {
                 assert!((c[i * ldc + j] - 2.0 * want[i * n + j]).abs() < 2.0 * TOL);
             }
+        }
+    }
+
+    #[test]
+    fn transposed_product_matches_naive_and_leaves_padding() {
+        let (m, n, k) = (23, 3, 17);
+        let a: Vec<f32> = (0..m * k)
+            .map(|i| ((i * 3 % 7) as f32 - 3.0) / 3.0)
+            .collect();
+        let b: Vec<f32> = (0..k * n)
+            .map(|i| ((i * 5 % 9) as f32 - 4.0) / 4.0)
+            .collect();
+        let want = naive(m, n, k, &a, &b);
+        let ldct = m + 2;
+        let mut ct = vec![7.0f32; n * ldct];
+        sgemm_into_transposed(
+            m,
+            n,
+            k,
+            Mat { data: &a, ld: k },
+            Mat { data: &b, ld: n },
+            &mut ct,
+            ldct,
+        );
+        for j in 0..n {
+            for i in 0..m {
+                assert!((ct[j * ldct + i] - want[i * n + j]).abs() < 1e-5);
+            }
+            assert_eq!(ct[j * ldct + m..(j + 1) * ldct], [7.0; 2]);
         }
     }
 }
