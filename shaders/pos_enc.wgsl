@@ -8,6 +8,10 @@
 //
 // Input `dirs`: [n, 9] rows, f32. Output `dst`: row r starts at out_base + r * out_stride.
 // One invocation per (row, j). Dispatch: 64-wide workgroups over n * 9, split over x and y.
+// `pos_enc_tex` writes the same channels into the rgba texture `dst_tex` instead (texel (c / 4,
+// row) holds channels c .. c + 3; channels past the encoding are 0), one invocation per
+// (row, texel) with out_stride = texels per row; `dst` is unused there, as is `dst_tex` in
+// `pos_enc`.
 alias st = f32;
 
 override OCTAVES: u32 = 16u;
@@ -23,6 +27,7 @@ struct PeParams {
 // Directions stay f32 in both variants: an f16 c would move 2^15·π·c by up to ~25 rad.
 @group(0) @binding(1) var<storage, read> dirs: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dst: array<st>;
+@group(0) @binding(3) var dst_tex: texture_storage_2d<rgba32float, write>;
 
 const HALF_PI: f32 = 1.5707963267948966;
 
@@ -67,4 +72,36 @@ fn pos_enc(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         dst[o + 1u] = st(sc.y);
         scale *= 2.0;
     }
+}
+
+// Channel `c` of the encoding of `row` (0 past the last channel).
+fn channel(row: u32, c: u32) -> f32 {
+    if c < 9u {
+        return dirs[row * 9u + c];
+    }
+    let cc = c - 9u;
+    let k = cc / 18u;
+    if k >= OCTAVES {
+        return 0.0;
+    }
+    let j = (cc % 18u) / 2u;
+    let x = dirs[row * 9u + j];
+    // 2^(k-1), exact, as the repeated doubling in `pos_enc`.
+    var t = fract(ldexp(0.5, i32(k)) * x);
+    t = select(t, t - 1.0, t >= 0.5);
+    let sc = sincos_2pi(t);
+    return select(sc.y, sc.x, cc % 2u == 0u);
+}
+
+@compute @workgroup_size(64, 1, 1)
+fn pos_enc_tex(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let idx = gid.x + gid.y * nwg.x * 64u;
+    if idx >= p.n * p.out_stride {
+        return;
+    }
+    let row = idx / p.out_stride;
+    let t = idx % p.out_stride;
+    let c = 4u * t;
+    let v = vec4<f32>(channel(row, c), channel(row, c + 1u), channel(row, c + 2u), channel(row, c + 3u));
+    textureStore(dst_tex, vec2<u32>(t, row), v);
 }

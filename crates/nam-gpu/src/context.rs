@@ -42,13 +42,45 @@ pub(crate) struct DeviceBuffer {
     pub precision: Precision,
 }
 
+/// A row-major matrix in a 2-D rgba texture: texel (t, r) holds channels 4t .. 4t + 3 of
+/// row r (`rgba32float`, or `rgba16float` for f16 storage).
+#[derive(Debug, Clone)]
+pub(crate) struct DeviceTexture {
+    pub texture: wgpu::Texture,
+    pub view: wgpu::TextureView,
+    /// Width in texels (4 channels each).
+    pub texels: u32,
+    /// Height: matrix rows.
+    pub rows: u32,
+    pub precision: Precision,
+}
+
+/// One bound resource of a dispatch.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Res<'a> {
+    Buf(&'a wgpu::Buffer),
+    Tex(&'a wgpu::TextureView),
+}
+
 /// Which matmul entry point runs the MLP layers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MatmulVariant {
     /// 64x64 tiles staged through workgroup memory (GPUs).
     Tiled,
-    /// Barrier-free 4x4 register tiles straight from storage (CPU adapters such as llvmpipe).
+    /// Barrier-free 4x4 register tiles straight from storage (CPU adapters without subgroups).
     Direct,
+    /// Texture operands, 16x16 blocks per 8-invocation subgroup with `subgroupBroadcast`
+    /// (CPU adapters such as llvmpipe with `Features::SUBGROUP` and subgroups of >= 8).
+    /// Only the render MLP has a texture plan; standalone products use [`MatmulVariant::Direct`].
+    Texture,
+}
+
+/// Texel format of `precision` textures.
+pub(crate) fn texel_format(precision: Precision) -> wgpu::TextureFormat {
+    match precision {
+        Precision::F32 => wgpu::TextureFormat::Rgba32Float,
+        Precision::F16 => wgpu::TextureFormat::Rgba16Float,
+    }
 }
 
 /// Owns the device handles, the lazily built pipelines and shared helper buffers.
@@ -60,6 +92,8 @@ pub struct GpuContext {
     matmul: MatmulVariant,
     /// Bound where a kernel's optional input is unused (bias, norm, residual).
     dummy: wgpu::Buffer,
+    /// 1x1 storage textures (f32, f16) bound where a kernel's texture output is unused.
+    dummy_tex: [wgpu::TextureView; 2],
 }
 
 fn pop_scope(scope: wgpu::ErrorScopeGuard) -> Option<wgpu::Error> {
@@ -69,8 +103,9 @@ fn pop_scope(scope: wgpu::ErrorScopeGuard) -> Option<wgpu::Error> {
 impl GpuContext {
     /// Wraps a caller-owned device and queue (cheap clones of wgpu handles).
     ///
-    /// `adapter_type` picks kernel variants: `DeviceType::Cpu` (lavapipe) gets the
-    /// barrier-free matmul, everything else the workgroup-tiled one.
+    /// `adapter_type` picks kernel variants: `DeviceType::Cpu` (lavapipe) gets the texture +
+    /// subgroup matmul when the device has `Features::SUBGROUP` with subgroups of at least 8
+    /// invocations, else the barrier-free one; everything else the workgroup-tiled one.
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -83,22 +118,31 @@ impl GpuContext {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::UNIFORM,
             mapped_at_creation: false,
         });
+        let dummy_tex = [Precision::F32, Precision::F16].map(|p| {
+            device
+                .create_texture(&texture_desc("nam-gpu dummy texture", 1, 1, p))
+                .create_view(&wgpu::TextureViewDescriptor::default())
+        });
         if let Some(e) = pop_scope(scope) {
             return Err(GpuError::Device {
                 during: "dummy buffer",
                 message: e.to_string(),
             });
         }
+        // The texture kernel broadcasts within its 8-invocation workgroup.
+        let subgroups = device.features().contains(wgpu::Features::SUBGROUP)
+            && device.adapter_info().subgroup_min_size >= 8;
         Ok(Self {
             device: device.clone(),
             queue: queue.clone(),
             pipelines: Mutex::new(HashMap::new()),
-            matmul: if adapter_type == wgpu::DeviceType::Cpu {
-                MatmulVariant::Direct
-            } else {
-                MatmulVariant::Tiled
+            matmul: match (adapter_type == wgpu::DeviceType::Cpu, subgroups) {
+                (true, true) => MatmulVariant::Texture,
+                (true, false) => MatmulVariant::Direct,
+                (false, _) => MatmulVariant::Tiled,
             },
             dummy,
+            dummy_tex,
         })
     }
 
@@ -130,13 +174,22 @@ impl GpuContext {
         self.matmul
     }
 
-    /// Overrides the matmul variant (for comparisons; both compute the same product).
+    /// Overrides the matmul variant (for comparisons; all compute the same product).
+    /// `Texture` needs `Features::SUBGROUP`; without it pipeline creation fails.
     pub fn set_matmul_variant(&mut self, v: MatmulVariant) {
         self.matmul = v;
     }
 
     pub(crate) fn dummy(&self) -> &wgpu::Buffer {
         &self.dummy
+    }
+
+    /// A 1x1 storage texture of `precision`'s format, for unused texture outputs.
+    pub(crate) fn dummy_tex(&self, precision: Precision) -> &wgpu::TextureView {
+        match precision {
+            Precision::F32 => &self.dummy_tex[0],
+            Precision::F16 => &self.dummy_tex[1],
+        }
     }
 
     /// Largest storage binding in elements of `precision` the device allows.
@@ -199,6 +252,16 @@ impl GpuContext {
                         },
                         has_dynamic_offset: false,
                         min_binding_size: None,
+                    },
+                    Binding::Texture => wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    Binding::StorageTexture => wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: texel_format(key.precision),
+                        view_dimension: wgpu::TextureViewDimension::D2,
                     },
                 },
                 count: None,
@@ -378,13 +441,25 @@ impl GpuContext {
         buffers: &[&wgpu::Buffer],
         groups: [u32; 3],
     ) -> Result<Dispatch> {
+        let res: Vec<Res<'_>> = buffers.iter().map(|b| Res::Buf(b)).collect();
+        self.dispatch_with(key, uniform, &res, groups)
+    }
+
+    /// As [`GpuContext::dispatch`] with buffers and textures.
+    pub(crate) fn dispatch_with(
+        &self,
+        key: &PipelineKey,
+        uniform: Option<&[u32]>,
+        bound: &[Res<'_>],
+        groups: [u32; 3],
+    ) -> Result<Dispatch> {
         let pipeline = self.pipeline(key)?;
         let ubuf = uniform.map(|u| self.uniform(u)).transpose()?;
-        let mut resources: Vec<&wgpu::Buffer> = Vec::with_capacity(buffers.len() + 1);
+        let mut resources: Vec<Res<'_>> = Vec::with_capacity(bound.len() + 1);
         if let Some(u) = &ubuf {
-            resources.push(u);
+            resources.push(Res::Buf(u));
         }
-        resources.extend_from_slice(buffers);
+        resources.extend_from_slice(bound);
         if resources.len() != key.family.bindings().len() {
             return Err(GpuError::Device {
                 during: "bind group",
@@ -400,9 +475,12 @@ impl GpuContext {
         let entries: Vec<wgpu::BindGroupEntry<'_>> = resources
             .iter()
             .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry {
+            .map(|(i, r)| wgpu::BindGroupEntry {
                 binding: i as u32,
-                resource: b.as_entire_binding(),
+                resource: match r {
+                    Res::Buf(b) => b.as_entire_binding(),
+                    Res::Tex(v) => wgpu::BindingResource::TextureView(v),
+                },
             })
             .collect();
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -465,6 +543,170 @@ impl GpuContext {
         let bytes = (count * buf.precision.elem_bytes())
             .next_multiple_of(4)
             .max(4);
+        let raw = self.readback(bytes, |encoder, staging| {
+            encoder.copy_buffer_to_buffer(&buf.buffer, 0, staging, 0, bytes);
+        })?;
+        let mut out = decode(&raw, buf.precision);
+        out.truncate(count as usize);
+        Ok(out)
+    }
+
+    /// A zero-initialised texture for a `rows x 4 texels` matrix (bindable as sampled and as
+    /// storage texture).
+    pub(crate) fn texture(
+        &self,
+        label: &str,
+        texels: u32,
+        rows: u32,
+        precision: Precision,
+    ) -> Result<DeviceTexture> {
+        let max = self.device.limits().max_texture_dimension_2d;
+        if texels == 0 || rows == 0 || texels > max || rows > max {
+            return Err(GpuError::Size {
+                what: "texture",
+                reason: format!("{label}: {texels}x{rows} texels outside 1..={max}"),
+            });
+        }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let texture = self
+            .device
+            .create_texture(&texture_desc(label, texels, rows, precision));
+        if let Some(e) = pop_scope(scope) {
+            return Err(GpuError::Device {
+                during: "texture allocation",
+                message: format!("{label}: {e}"),
+            });
+        }
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        Ok(DeviceTexture {
+            texture,
+            view,
+            texels,
+            rows,
+            precision,
+        })
+    }
+
+    /// A texture holding the `rows x cols` row-major matrix `data`, rows zero-padded to
+    /// whole texels.
+    pub(crate) fn upload_matrix(
+        &self,
+        label: &str,
+        data: &[f32],
+        rows: u32,
+        cols: u32,
+        precision: Precision,
+    ) -> Result<DeviceTexture> {
+        let tex = self.texture(label, cols.div_ceil(4), rows, precision)?;
+        let (c, w) = (cols as usize, 4 * tex.texels as usize);
+        if data.len() != rows as usize * c {
+            return Err(GpuError::InputLength {
+                what: "matrix",
+                expected: rows as usize * c,
+                got: data.len(),
+            });
+        }
+        let mut padded = vec![0.0f32; rows as usize * w];
+        for (dst, src) in padded.chunks_exact_mut(w).zip(data.chunks_exact(c.max(1))) {
+            dst[..c].copy_from_slice(src);
+        }
+        self.write_texture(&tex, 0, &padded, w)?;
+        Ok(tex)
+    }
+
+    /// Writes `data`, rows of `width` channels (a multiple of 4), into the texels starting at
+    /// column `texel_base` of rows 0.. of `tex`.
+    pub(crate) fn write_texture(
+        &self,
+        tex: &DeviceTexture,
+        texel_base: u32,
+        data: &[f32],
+        width: usize,
+    ) -> Result<()> {
+        let texels = (width / 4) as u32;
+        let rows = data.len().checked_div(width).unwrap_or(0);
+        if !width.is_multiple_of(4)
+            || width == 0
+            || !data.len().is_multiple_of(width)
+            || texel_base + texels > tex.texels
+            || rows > tex.rows as usize
+        {
+            return Err(GpuError::Size {
+                what: "texture write",
+                reason: format!(
+                    "{} values in rows of {width} at texel {texel_base} do not fit {}x{} texels",
+                    data.len(),
+                    tex.texels,
+                    tex.rows
+                ),
+            });
+        }
+        if rows == 0 {
+            return Ok(());
+        }
+        self.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &tex.texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d {
+                    x: texel_base,
+                    y: 0,
+                    z: 0,
+                },
+                aspect: wgpu::TextureAspect::All,
+            },
+            &Self::encode(data, tex.precision),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some((width as u64 * tex.precision.elem_bytes()) as u32),
+                rows_per_image: None,
+            },
+            wgpu::Extent3d {
+                width: texels,
+                height: rows as u32,
+                depth_or_array_layers: 1,
+            },
+        );
+        Ok(())
+    }
+
+    /// Reads the first `rows` rows of `tex` back as f32, `4 * texels` channels per row.
+    pub(crate) fn read_texture(&self, tex: &DeviceTexture, rows: u32) -> Result<Vec<f32>> {
+        let rows = rows.min(tex.rows).max(1);
+        let row_bytes = u64::from(tex.texels) * 4 * tex.precision.elem_bytes();
+        let padded = row_bytes.next_multiple_of(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT));
+        let raw = self.readback(padded * u64::from(rows), |encoder, staging| {
+            encoder.copy_texture_to_buffer(
+                tex.texture.as_image_copy(),
+                wgpu::TexelCopyBufferInfo {
+                    buffer: staging,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(padded as u32),
+                        rows_per_image: None,
+                    },
+                },
+                wgpu::Extent3d {
+                    width: tex.texels,
+                    height: rows,
+                    depth_or_array_layers: 1,
+                },
+            );
+        })?;
+        let mut out = Vec::with_capacity((row_bytes / tex.precision.elem_bytes()) as usize);
+        for row in raw.chunks_exact(padded as usize) {
+            out.extend(decode(&row[..row_bytes as usize], tex.precision));
+        }
+        Ok(out)
+    }
+
+    /// Records a copy into a fresh `bytes`-long staging buffer with `record`, submits it,
+    /// waits and returns the staging contents.
+    fn readback(
+        &self,
+        bytes: u64,
+        record: impl FnOnce(&mut wgpu::CommandEncoder, &wgpu::Buffer),
+    ) -> Result<Vec<u8>> {
         let staging = self.create_buffer(
             "nam-gpu readback",
             bytes,
@@ -476,7 +718,7 @@ impl GpuContext {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("nam-gpu readback"),
             });
-        encoder.copy_buffer_to_buffer(&buf.buffer, 0, &staging, 0, bytes);
+        record(&mut encoder, &staging);
         self.queue.submit([encoder.finish()]);
         if let Some(e) = pop_scope(scope) {
             return Err(GpuError::Device {
@@ -495,19 +737,10 @@ impl GpuContext {
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let out = {
-            let view = staging
-                .get_mapped_range(..)
-                .map_err(|e| GpuError::Readback(e.to_string()))?;
-            let n = count as usize;
-            match buf.precision {
-                Precision::F32 => bytemuck::cast_slice::<u8, f32>(&view)[..n].to_vec(),
-                Precision::F16 => bytemuck::cast_slice::<u8, half::f16>(&view)[..n]
-                    .iter()
-                    .map(|h| h.to_f32())
-                    .collect(),
-            }
-        };
+        let out = staging
+            .get_mapped_range(..)
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .to_vec();
         staging.unmap();
         Ok(out)
     }
@@ -521,6 +754,45 @@ impl GpuContext {
                 during: "poll",
                 message: e.to_string(),
             })
+    }
+}
+
+/// Stored values of `precision` as f32.
+fn decode(bytes: &[u8], precision: Precision) -> Vec<f32> {
+    match precision {
+        Precision::F32 => bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
+        Precision::F16 => bytes
+            .chunks_exact(2)
+            .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
+            .collect(),
+    }
+}
+
+fn texture_desc(
+    label: &str,
+    texels: u32,
+    rows: u32,
+    precision: Precision,
+) -> wgpu::TextureDescriptor<'_> {
+    wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: texels,
+            height: rows,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: texel_format(precision),
+        usage: wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::STORAGE_BINDING
+            | wgpu::TextureUsages::COPY_DST
+            | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
     }
 }
 

@@ -14,7 +14,7 @@ pub struct DeviceHandles {
 
 /// Requests the default adapter (lavapipe on a machine with only Mesa's CPU Vulkan) and a
 /// device with WebGPU's default limits, plus `SHADER_F16` when `want_f16` and the adapter
-/// has it. Returns `None` and prints the reason to stderr when no adapter or device exists.
+/// has it, and `SUBGROUP` when the adapter has it (the CPU matmul variant uses it). Returns `None` and prints the reason to stderr when no adapter or device exists.
 pub fn request_device(want_f16: bool) -> Option<DeviceHandles> {
     let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
     let adapter =
@@ -28,7 +28,7 @@ pub fn request_device(want_f16: bool) -> Option<DeviceHandles> {
                 return None;
             }
         };
-    let mut features = wgpu::Features::empty();
+    let mut features = adapter.features() & wgpu::Features::SUBGROUP;
     if want_f16 && adapter.features().contains(wgpu::Features::SHADER_F16) {
         features |= wgpu::Features::SHADER_F16;
     }

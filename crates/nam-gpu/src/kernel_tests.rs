@@ -4,7 +4,7 @@
 use std::sync::OnceLock;
 
 use crate::context::{DeviceBuffer, GpuContext, MatmulVariant};
-use crate::ops::{self, Act, ConvShape, Elementwise, GateTail, Rows, View};
+use crate::ops::{self, Act, ConvShape, Elementwise, GateTail, Rows, TexOut, View};
 use crate::shaders::Precision;
 
 /// f32 kernels vs f64 CPU loops: sums of up to ~600 products of O(1) values; f32 rounding
@@ -699,6 +699,168 @@ fn tiled_matmul_matches_cpu_reference_on_odd_sizes() {
                 tol,
                 &format!("matmul {variant:?} {rows}x{cols}x{inner} {p:?}"),
             );
+        }
+    }
+}
+
+/// The texture matmul needs `Features::SUBGROUP`; `None` (with a printed reason) without it.
+fn texture_ctx() -> Option<&'static GpuContext> {
+    let ctx = ctx()?;
+    if !ctx.device().features().contains(wgpu::Features::SUBGROUP)
+        || ctx.device().adapter_info().subgroup_min_size < 8
+    {
+        eprintln!("SKIP: adapter lacks subgroups of >= 8 invocations; texture matmul not run");
+        return None;
+    }
+    Some(ctx)
+}
+
+#[test]
+fn texture_matmul_matches_cpu_reference_on_odd_sizes() {
+    let Some(ctx) = texture_ctx() else { return };
+    for (p, tol) in precisions(ctx) {
+        for &(rows, cols, inner, act) in &[
+            (70usize, 37usize, 45usize, Act::Leaky(0.01)),
+            (3, 130, 17, Act::None),
+            (129, 3, 594, Act::Leaky(0.001)),
+            (33, 594, 297, Act::Leaky(0.01)),
+        ] {
+            let x = q(&rand_vec(rows * inner, rows as u64 + 3), p);
+            let w = q(&rand_vec(cols * inner, cols as u64 + 5), p);
+            let xt = ctx
+                .upload_matrix("x", &x, rows as u32, inner as u32, p)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let wt = ctx
+                .upload_matrix("w", &w, cols as u32, inner as u32, p)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let mut want = Vec::with_capacity(rows * cols);
+            for m in 0..rows {
+                for n in 0..cols {
+                    let s: f64 = (0..inner)
+                        .map(|k| f64::from(x[m * inner + k]) * f64::from(w[n * inner + k]))
+                        .sum();
+                    want.push(act_ref(s, act) as f32);
+                }
+            }
+            let what = format!("matmul_tex {rows}x{cols}x{inner} {p:?}");
+            // Texture output one texel in, with a texel to spare: the texel before the
+            // output keeps its sentinel, channels past `cols` come back as 0.
+            let texels = cols.div_ceil(4) + 2;
+            let yt = ctx
+                .upload_matrix(
+                    "y",
+                    &vec![7.0; rows * 4 * texels],
+                    rows as u32,
+                    4 * texels as u32,
+                    p,
+                )
+                .unwrap_or_else(|e| panic!("{e}"));
+            let to_tex = TexOut::Texture {
+                tex: &yt,
+                texel_base: 1,
+            };
+            let d = ops::matmul_tex(
+                ctx,
+                &xt,
+                &wt,
+                to_tex,
+                rows as u32,
+                cols as u32,
+                inner as u32,
+                act,
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
+            ctx.run(&[d]).unwrap_or_else(|e| panic!("{e}"));
+            let got = ctx
+                .read_texture(&yt, rows as u32)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let mut g = Vec::with_capacity(rows * cols);
+            for row in got.chunks_exact(4 * texels) {
+                assert!(
+                    row[..4].iter().all(|&v| v == 7.0),
+                    "{what}: texel 0 overwritten"
+                );
+                let pad = &row[4 + cols..4 + 4 * cols.div_ceil(4)];
+                assert!(pad.iter().all(|&v| v == 0.0), "{what}: pad {pad:?}");
+                g.extend_from_slice(&row[4..4 + cols]);
+            }
+            assert_close(&g, &want, tol, &format!("{what} -> texture"));
+            // Buffer output with a row stride wider than `cols`.
+            let ys = cols + 4;
+            let out = zeros(ctx, rows * ys, p);
+            let d = ops::matmul_tex(
+                ctx,
+                &xt,
+                &wt,
+                TexOut::Buffer {
+                    buf: &out.buffer,
+                    stride: ys as u32,
+                },
+                rows as u32,
+                cols as u32,
+                inner as u32,
+                act,
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
+            let got = run(ctx, vec![d], &out, rows * ys);
+            let g: Vec<f32> = got
+                .chunks_exact(ys)
+                .flat_map(|r| r[..cols].to_vec())
+                .collect();
+            assert_close(&g, &want, tol, &format!("{what} -> buffer"));
+        }
+    }
+}
+
+#[test]
+fn texture_positional_encoding_matches_buffer_kernel_and_pads_with_zeros() {
+    let Some(ctx) = texture_ctx() else { return };
+    for (p, _) in precisions(ctx) {
+        let rows = 29usize;
+        let width = 9 + 18 * 16;
+        let dirs = rand_vec(rows * 9, 111);
+        let db = up(ctx, &dirs, Precision::F32);
+        let out = zeros(ctx, rows * width, p);
+        let d = ops::pos_enc(
+            ctx,
+            p,
+            &db.buffer,
+            rows as u32,
+            16,
+            View {
+                buf: &out.buffer,
+                base: 0,
+            },
+            width as u32,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let want = run(ctx, vec![d], &out, rows * width);
+        // One spare texel beyond the encoding's 75: it must come back as zeros too.
+        let texels = width.div_ceil(4) + 1;
+        let tex = ctx
+            .texture("enc", texels as u32, rows as u32, p)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let d = ops::pos_enc_tex(ctx, &db.buffer, rows as u32, 16, &tex)
+            .unwrap_or_else(|e| panic!("{e}"));
+        ctx.run(&[d]).unwrap_or_else(|e| panic!("{e}"));
+        let got = ctx
+            .read_texture(&tex, rows as u32)
+            .unwrap_or_else(|e| panic!("{e}"));
+        // Same formula and range reduction, so equal up to the final rounding: f32 within a
+        // couple of ulps of values <= 1; f16 texture stores may round differently from the
+        // shader's f16 conversion, one f16 ulp (<= 2^-11 below 1) apart.
+        let tol = match p {
+            Precision::F32 => 2.0 * f32::EPSILON,
+            Precision::F16 => 1e-3,
+        };
+        for (r, row) in got.chunks_exact(4 * texels).enumerate() {
+            for (c, (&g, &w)) in row[..width].iter().zip(&want[r * width..]).enumerate() {
+                assert!(
+                    (g - w).abs() <= tol,
+                    "row {r} channel {c}: {g} vs {w} {p:?}"
+                );
+            }
+            assert!(row[width..].iter().all(|&v| v == 0.0), "row {r} padding");
         }
     }
 }

@@ -4,9 +4,9 @@ use std::collections::HashMap;
 
 use nam_weights::Weights;
 
-use crate::context::{DeviceBuffer, Dispatch, GpuContext};
+use crate::context::{DeviceBuffer, DeviceTexture, Dispatch, GpuContext, MatmulVariant};
 use crate::error::{GpuError, Result};
-use crate::ops::{self, Act, ConvShape, Elementwise, GateTail, Rows, View};
+use crate::ops::{self, Act, ConvShape, Elementwise, GateTail, Rows, TexOut, View};
 use crate::shaders::Precision;
 use crate::weights::{self, BasicWeights, HaWeights, RenderWeights, ReverseWeights, UnetWeights};
 
@@ -48,9 +48,17 @@ struct EstimatePlan {
 struct RenderPlan {
     dirs: DeviceBuffer,
     /// `[rows, param_channels + nd_out]`: params uploaded, ND_enc output written in place.
-    cat: DeviceBuffer,
+    cat: Cat,
     out: DeviceBuffer,
     dispatches: Vec<Dispatch>,
+}
+
+/// Where a render plan keeps `[params | nd_enc]` rows: a buffer, or a texture for the
+/// [`MatmulVariant::Texture`] plan (every MLP operand is a texture there).
+#[derive(Debug)]
+enum Cat {
+    Buffer(DeviceBuffer),
+    Texture(DeviceTexture),
 }
 
 /// Scratch buffers shared by all blocks of one estimate plan (each `scratch` elements).
@@ -634,7 +642,113 @@ impl GpuNetwork {
         Ok(hwc)
     }
 
+    /// Whether render plans use textures: the context's matmul is [`MatmulVariant::Texture`],
+    /// every layer has its texture and the params fill whole texels.
+    fn texture_render(&self) -> bool {
+        let r = &self.render;
+        self.ctx.matmul_variant() == MatmulVariant::Texture
+            && r.param_channels.is_multiple_of(4)
+            && r.nd.iter().chain(&r.mlp).all(|l| l.tex.is_some())
+    }
+
+    /// Most rows of one render submission.
+    fn render_chunk(&self) -> u32 {
+        if self.texture_render() {
+            MAX_RENDER_ROWS.min(self.ctx.device().limits().max_texture_dimension_2d)
+        } else {
+            MAX_RENDER_ROWS
+        }
+    }
+
     fn build_render_plan(&self, rows: u32) -> Result<RenderPlan> {
+        if self.texture_render() {
+            self.build_render_plan_tex(rows)
+        } else {
+            self.build_render_plan_buf(rows)
+        }
+    }
+
+    /// The render chain on textures: pos_enc_tex, then one `matmul_tex` per layer; the last
+    /// layer writes the `[rows, 3]` output buffer.
+    fn build_render_plan_tex(&self, rows: u32) -> Result<RenderPlan> {
+        let (ctx, p) = (&self.ctx, self.precision);
+        let r = &self.render;
+        let nd_out = r.nd.last().map_or(0, |l| l.out);
+        let widest = r.nd.iter().chain(&r.mlp).map(|l| l.out).max().unwrap_or(1);
+        let dirs = ctx.storage("dirs", 9 * u64::from(rows), Precision::F32)?;
+        let enc = ctx.texture("encoding", r.encoding.div_ceil(4), rows, p)?;
+        let cat = ctx.texture(
+            "params|nd",
+            (r.param_channels + nd_out).div_ceil(4),
+            rows,
+            p,
+        )?;
+        let ping = [
+            ctx.texture("mlp ping", widest.div_ceil(4), rows, p)?,
+            ctx.texture("mlp pong", widest.div_ceil(4), rows, p)?,
+        ];
+        let out_w = r.mlp.last().map_or(0, |l| l.out);
+        let out = ctx.storage("radiance log", u64::from(out_w) * u64::from(rows), p)?;
+        let mut d = vec![ops::pos_enc_tex(ctx, &dirs.buffer, rows, r.octaves, &enc)?];
+        let act = |s: Option<f32>| s.map_or(Act::None, Act::Leaky);
+        let missing = || GpuError::Unsupported("render layer without texture".into());
+        let mut x = &enc;
+        for (i, l) in r.nd.iter().enumerate() {
+            let (y, texel_base) = if i + 1 == r.nd.len() {
+                (&cat, r.param_channels / 4)
+            } else {
+                (&ping[i % 2], 0)
+            };
+            let w = l.tex.as_ref().ok_or_else(missing)?;
+            let target = TexOut::Texture { tex: y, texel_base };
+            d.push(ops::matmul_tex(
+                ctx,
+                x,
+                w,
+                target,
+                rows,
+                l.out,
+                l.inp,
+                act(l.slope),
+            )?);
+            x = y;
+        }
+        let mut x = &cat;
+        for (i, l) in r.mlp.iter().enumerate() {
+            let w = l.tex.as_ref().ok_or_else(missing)?;
+            let y = &ping[i % 2];
+            let target = if i + 1 == r.mlp.len() {
+                TexOut::Buffer {
+                    buf: &out.buffer,
+                    stride: l.out,
+                }
+            } else {
+                TexOut::Texture {
+                    tex: y,
+                    texel_base: 0,
+                }
+            };
+            d.push(ops::matmul_tex(
+                ctx,
+                x,
+                w,
+                target,
+                rows,
+                l.out,
+                l.inp,
+                act(l.slope),
+            )?);
+            x = y;
+        }
+        Ok(RenderPlan {
+            dirs,
+            cat: Cat::Texture(cat),
+            out,
+            dispatches: d,
+        })
+    }
+
+    fn build_render_plan_buf(&self, rows: u32) -> Result<RenderPlan> {
         let (ctx, p) = (&self.ctx, self.precision);
         let r = &self.render;
         let n = u64::from(rows);
@@ -725,7 +839,7 @@ impl GpuNetwork {
         }
         Ok(RenderPlan {
             dirs,
-            cat,
+            cat: Cat::Buffer(cat),
             out,
             dispatches: d,
         })
@@ -760,7 +874,7 @@ impl GpuNetwork {
         let cat_w = pc + nd_out;
         let mut log = Vec::with_capacity(n * out_w);
         let mut nd = Vec::with_capacity(if want_nd { n * nd_out } else { 0 });
-        let max_rows = MAX_RENDER_ROWS as usize;
+        let max_rows = self.render_chunk() as usize;
         let mut start = 0;
         while start < n {
             let rows = (n - start).min(max_rows);
@@ -776,22 +890,30 @@ impl GpuNetwork {
                 what: "plan",
                 reason: "render plan missing after build".into(),
             })?;
-            let mut cat = vec![0.0f32; rows * cat_w];
-            for (dst, src) in cat
-                .chunks_exact_mut(cat_w)
-                .zip(params[start * pc..(start + rows) * pc].chunks_exact(pc))
-            {
-                dst[..pc].copy_from_slice(src);
+            let chunk = &params[start * pc..(start + rows) * pc];
+            match &plan.cat {
+                Cat::Buffer(buf) => {
+                    let mut cat = vec![0.0f32; rows * cat_w];
+                    for (dst, src) in cat.chunks_exact_mut(cat_w).zip(chunk.chunks_exact(pc)) {
+                        dst[..pc].copy_from_slice(src);
+                    }
+                    self.ctx.write(buf, 0, &cat)?;
+                }
+                Cat::Texture(tex) => self.ctx.write_texture(tex, 0, chunk, pc)?,
             }
-            self.ctx.write(&plan.cat, 0, &cat)?;
             self.ctx
                 .write(&plan.dirs, 0, &dirs[start * 9..(start + rows) * 9])?;
             self.ctx.run(&plan.dispatches)?;
             log.extend(self.ctx.read(&plan.out, (rows * out_w) as u64)?);
             if want_nd {
-                let c = self.ctx.read(&plan.cat, (rows * cat_w) as u64)?;
-                for row in c.chunks_exact(cat_w) {
-                    nd.extend_from_slice(&row[pc..]);
+                let (c, width) = match &plan.cat {
+                    Cat::Buffer(buf) => (self.ctx.read(buf, (rows * cat_w) as u64)?, cat_w),
+                    Cat::Texture(tex) => {
+                        (self.ctx.read_texture(tex, key)?, 4 * tex.texels as usize)
+                    }
+                };
+                for row in c.chunks_exact(width) {
+                    nd.extend_from_slice(&row[pc..cat_w]);
                 }
             }
             start += rows;

@@ -2,7 +2,9 @@
 //! Tensors are NCHW with batch 1, addressed as (buffer, element offset) views so that
 //! concatenations are channel offsets into one buffer.
 
-use crate::context::{Dispatch, GpuContext, MatmulVariant, PipelineKey, groups_1d, linear_groups};
+use crate::context::{
+    DeviceTexture, Dispatch, GpuContext, MatmulVariant, PipelineKey, Res, groups_1d, linear_groups,
+};
 use crate::error::{GpuError, Result};
 use crate::shaders::{Family, Precision};
 
@@ -395,11 +397,120 @@ pub(crate) fn pos_enc(
         precision,
         constants: vec![("OCTAVES", octaves)],
     };
-    ctx.dispatch(
+    ctx.dispatch_with(
         &key,
         Some(&words),
-        &[dirs, dst.buf],
+        &[
+            Res::Buf(dirs),
+            Res::Buf(dst.buf),
+            Res::Tex(ctx.dummy_tex(precision)),
+        ],
         linear_groups(u64::from(n) * 9, 64)?,
+    )
+}
+
+/// Positional encoding of `n` rows into the texture `dst` (texel (t, r) = channels 4t..4t+3
+/// of row r, zero past the `9 + 18 octaves` channels), over all of its texel columns.
+pub(crate) fn pos_enc_tex(
+    ctx: &GpuContext,
+    dirs: &wgpu::Buffer,
+    n: u32,
+    octaves: u32,
+    dst: &DeviceTexture,
+) -> Result<Dispatch> {
+    if n > dst.rows {
+        return Err(GpuError::Size {
+            what: "pos_enc_tex",
+            reason: format!("{n} rows into a texture of {}", dst.rows),
+        });
+    }
+    let words = [n, dst.texels, 0, 0];
+    let key = PipelineKey {
+        family: Family::PosEnc,
+        entry: "pos_enc_tex",
+        precision: dst.precision,
+        constants: vec![("OCTAVES", octaves)],
+    };
+    ctx.dispatch_with(
+        &key,
+        Some(&words),
+        &[Res::Buf(dirs), Res::Buf(ctx.dummy()), Res::Tex(&dst.view)],
+        linear_groups(u64::from(n) * u64::from(dst.texels), 64)?,
+    )
+}
+
+/// Where [`matmul_tex`] writes `y`.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum TexOut<'a> {
+    /// Texture texels from column `texel_base` on.
+    Texture {
+        tex: &'a DeviceTexture,
+        texel_base: u32,
+    },
+    /// Row-major buffer rows `stride` elements apart.
+    Buffer { buf: &'a wgpu::Buffer, stride: u32 },
+}
+
+/// `y[m, n] = act(sum_k x[m, k] * w[n, k])` with texture operands (`shaders/matmul_tex.wgsl`):
+/// `x` texels 0 .. ceil(inner / 4) of rows 0 .. rows, `w` a `[cols, inner]` matrix texture.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn matmul_tex(
+    ctx: &GpuContext,
+    x: &DeviceTexture,
+    w: &DeviceTexture,
+    y: TexOut<'_>,
+    rows: u32,
+    cols: u32,
+    inner: u32,
+    act: Act,
+) -> Result<Dispatch> {
+    let inner4 = inner.div_ceil(4);
+    let fits_out = match y {
+        TexOut::Texture { tex, texel_base } => {
+            tex.rows >= rows && texel_base + cols.div_ceil(4) <= tex.texels
+        }
+        TexOut::Buffer { stride, .. } => stride >= cols,
+    };
+    if x.rows < rows || x.texels < inner4 || w.rows < cols || w.texels < inner4 || !fits_out {
+        return Err(GpuError::Size {
+            what: "matmul_tex",
+            reason: format!(
+                "{rows}x{cols}x{inner} does not fit x {}x{}, w {}x{} texels or the output",
+                x.texels, x.rows, w.texels, w.rows
+            ),
+        });
+    }
+    let (act_code, slope) = act.code();
+    let (base, out_buf, stride, yt, yb) = match y {
+        TexOut::Texture { tex, texel_base } => (texel_base, 0, 0, &tex.view, ctx.dummy()),
+        TexOut::Buffer { buf, stride } => (0, 1, stride, ctx.dummy_tex(w.precision), buf),
+    };
+    let words = [
+        rows,
+        cols,
+        inner4,
+        base,
+        out_buf,
+        stride,
+        act_code,
+        f(slope),
+    ];
+    let key = PipelineKey {
+        family: Family::MatmulTex,
+        entry: "matmul_tex",
+        precision: w.precision,
+        constants: vec![],
+    };
+    ctx.dispatch_with(
+        &key,
+        Some(&words),
+        &[
+            Res::Tex(&x.view),
+            Res::Tex(&w.view),
+            Res::Tex(yt),
+            Res::Buf(yb),
+        ],
+        [groups_1d(cols, 16)?, groups_1d(rows, 16)?, 1],
     )
 }
 
@@ -469,7 +580,8 @@ pub(crate) fn matmul_as(
     ];
     let (entry, row_tile) = match variant {
         MatmulVariant::Tiled => ("matmul", 64),
-        MatmulVariant::Direct => ("matmul_direct", 4),
+        // Buffer operands: the texture variant's buffer-only stand-in.
+        MatmulVariant::Direct | MatmulVariant::Texture => ("matmul_direct", 4),
     };
     let key = PipelineKey {
         family: Family::Matmul,

@@ -38,23 +38,16 @@ pub fn fma_peak_gflops(ctx: &GpuContext, groups: u32, iters: u32, reps: u32) -> 
         &[&out.buffer],
         [groups, 1, 1],
     )?;
-    ctx.run(std::slice::from_ref(&d))?;
-    ctx.wait()?;
     let flops = f64::from(groups) * 256.0 * f64::from(iters) * 64.0;
-    let mut best = f64::INFINITY;
-    for _ in 0..reps.max(1) {
-        let t = Instant::now();
-        ctx.run(std::slice::from_ref(&d))?;
-        ctx.wait()?;
-        best = best.min(t.elapsed().as_secs_f64());
-    }
+    let best = time_best(ctx, &d, reps)?;
     // Keep the result observable so the kernel cannot be elided.
     let _ = ctx.read(&out, 1)?;
     Ok(flops / best / 1e9)
 }
 
-/// Measures the tiled matmul kernel (`shaders/matmul.wgsl`, f32, LeakyReLU epilogue) on a
-/// `rows x inner` by `inner x cols` product. Returns GFLOP/s (2 flops per multiply-add) of
+/// Measures the context's matmul variant (`shaders/matmul.wgsl` or, for
+/// [`crate::MatmulVariant::Texture`], `shaders/matmul_tex.wgsl`; f32, LeakyReLU epilogue) on
+/// a `rows x inner` by `inner x cols` product. Returns GFLOP/s (2 flops per multiply-add) of
 /// the best of `reps` timed runs after one warm-up.
 pub fn matmul_gflops(ctx: &GpuContext, rows: u32, cols: u32, inner: u32, reps: u32) -> Result<f64> {
     let p = Precision::F32;
@@ -64,6 +57,27 @@ pub fn matmul_gflops(ctx: &GpuContext, rows: u32, cols: u32, inner: u32, reps: u
     let w: Vec<f32> = (0..cols as usize * inner as usize)
         .map(|i| (i % 5) as f32 * 0.1)
         .collect();
+    if ctx.matmul_variant() == crate::MatmulVariant::Texture {
+        let xt = ctx.upload_matrix("matmul x", &x, rows, inner, p)?;
+        let wt = ctx.upload_matrix("matmul w", &w, cols, inner, p)?;
+        let yt = ctx.texture("matmul y", cols.div_ceil(4), rows, p)?;
+        let d = crate::ops::matmul_tex(
+            ctx,
+            &xt,
+            &wt,
+            crate::ops::TexOut::Texture {
+                tex: &yt,
+                texel_base: 0,
+            },
+            rows,
+            cols,
+            inner,
+            crate::ops::Act::Leaky(0.01),
+        )?;
+        let best = time_best(ctx, &d, reps)?;
+        let _ = ctx.read_texture(&yt, 1)?;
+        return Ok(2.0 * f64::from(rows) * f64::from(cols) * f64::from(inner) / best / 1e9);
+    }
     let xb = ctx.upload("matmul x", &x, p)?;
     let wb = ctx.upload("matmul w", &w, p)?;
     let yb = ctx.storage("matmul y", u64::from(rows) * u64::from(cols), p)?;
@@ -84,15 +98,21 @@ pub fn matmul_gflops(ctx: &GpuContext, rows: u32, cols: u32, inner: u32, reps: u
         inner,
         crate::ops::Act::Leaky(0.01),
     )?;
-    ctx.run(std::slice::from_ref(&d))?;
+    let best = time_best(ctx, &d, reps)?;
+    let _ = ctx.read(&yb, 1)?;
+    Ok(2.0 * f64::from(rows) * f64::from(cols) * f64::from(inner) / best / 1e9)
+}
+
+/// Best wall time in seconds of `reps` submissions of `d` (each waited for), after one warm-up.
+fn time_best(ctx: &GpuContext, d: &crate::context::Dispatch, reps: u32) -> Result<f64> {
+    ctx.run(std::slice::from_ref(d))?;
     ctx.wait()?;
     let mut best = f64::INFINITY;
     for _ in 0..reps.max(1) {
         let t = Instant::now();
-        ctx.run(std::slice::from_ref(&d))?;
+        ctx.run(std::slice::from_ref(d))?;
         ctx.wait()?;
         best = best.min(t.elapsed().as_secs_f64());
     }
-    let _ = ctx.read(&yb, 1)?;
-    Ok(2.0 * f64::from(rows) * f64::from(cols) * f64::from(inner) / best / 1e9)
+    Ok(best)
 }

@@ -2,7 +2,8 @@
 //!
 //! Every source declares its storage type with the line [`STORAGE_ALIAS_F32`]; the f16 variant
 //! replaces it with `alias st = f16;` and prepends `enable f16;`. Kernels load `f32(x)` and
-//! store `st(v)`, so arithmetic and accumulation stay f32 in both variants.
+//! store `st(v)`, so arithmetic and accumulation stay f32 in both variants. Storage textures
+//! are declared `rgba32float` and become `rgba16float` in the f16 variant.
 
 use std::borrow::Cow;
 
@@ -28,6 +29,10 @@ impl Precision {
 /// The line every precision-generic shader starts its declarations with.
 pub const STORAGE_ALIAS_F32: &str = "alias st = f32;";
 
+/// Storage-texture format of the f32 sources and of the f16 variant.
+const TEXEL_F32: &str = "rgba32float";
+const TEXEL_F16: &str = "rgba16float";
+
 /// A kernel family: one WGSL file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Family {
@@ -45,6 +50,8 @@ pub enum Family {
     PosEnc,
     /// `matmul.wgsl`: tiled matmul with fused activation.
     Matmul,
+    /// `matmul_tex.wgsl`: texture-operand, subgroup-broadcast matmul for CPU adapters.
+    MatmulTex,
     /// `fma_peak.wgsl`: FMA throughput probe (f32 only).
     FmaPeak,
     /// `smoke.wgsl`: one-line smoke test (f32 only).
@@ -57,11 +64,15 @@ pub(crate) enum Binding {
     Uniform,
     Read,
     ReadWrite,
+    /// `texture_2d<f32>` read with `textureLoad` (unfilterable float).
+    Texture,
+    /// `texture_storage_2d<rgba32float | rgba16float, write>` (by precision).
+    StorageTexture,
 }
 
 impl Family {
     /// Every family, for validation tests.
-    pub const ALL: [Family; 9] = [
+    pub const ALL: [Family; 10] = [
         Family::Conv2d,
         Family::ConvTranspose,
         Family::InstanceNorm,
@@ -69,6 +80,7 @@ impl Family {
         Family::Elementwise,
         Family::PosEnc,
         Family::Matmul,
+        Family::MatmulTex,
         Family::FmaPeak,
         Family::Smoke,
     ];
@@ -83,6 +95,7 @@ impl Family {
             Family::Elementwise => "elementwise.wgsl",
             Family::PosEnc => "pos_enc.wgsl",
             Family::Matmul => "matmul.wgsl",
+            Family::MatmulTex => "matmul_tex.wgsl",
             Family::FmaPeak => "fma_peak.wgsl",
             Family::Smoke => "smoke.wgsl",
         }
@@ -98,6 +111,7 @@ impl Family {
             Family::Elementwise => include_str!("../../../shaders/elementwise.wgsl"),
             Family::PosEnc => include_str!("../../../shaders/pos_enc.wgsl"),
             Family::Matmul => include_str!("../../../shaders/matmul.wgsl"),
+            Family::MatmulTex => include_str!("../../../shaders/matmul_tex.wgsl"),
             Family::FmaPeak => include_str!("../../../shaders/fma_peak.wgsl"),
             Family::Smoke => include_str!("../../../shaders/smoke.wgsl"),
         }
@@ -116,6 +130,7 @@ impl Family {
             Precision::F16 if self.has_f16() => Some(Cow::Owned(format!(
                 "enable f16;\n{}",
                 base.replacen(STORAGE_ALIAS_F32, "alias st = f16;", 1)
+                    .replace(TEXEL_F32, TEXEL_F16)
             ))),
             Precision::F16 => None,
         }
@@ -123,15 +138,18 @@ impl Family {
 
     /// Bind group 0 of every entry point of the family, in binding order.
     pub(crate) fn bindings(self) -> &'static [Binding] {
-        use Binding::{Read as R, ReadWrite as W, Uniform as U};
+        use Binding::{
+            Read as R, ReadWrite as W, StorageTexture as ST, Texture as T, Uniform as U,
+        };
         match self {
             Family::Conv2d => &[U, R, R, R, R, W],
             Family::ConvTranspose => &[U, R, R, R, W],
             Family::InstanceNorm => &[U, R, W, W],
             Family::HaGate => &[U, R, R, R, R, R, W],
             Family::Elementwise => &[U, R, R, R, W],
-            Family::PosEnc => &[U, R, W],
+            Family::PosEnc => &[U, R, W, ST],
             Family::Matmul => &[U, R, R, W],
+            Family::MatmulTex => &[U, T, T, ST, W],
             Family::FmaPeak => &[U, W],
             Family::Smoke => &[W],
         }
@@ -148,11 +166,17 @@ mod tests {
             .ok_or_else(|| format!("{family:?} has no {precision:?} variant"))?;
         let module = naga::front::wgsl::parse_str(&src)
             .map_err(|e| format!("{}: {}", family.file_name(), e.emit_to_string(&src)))?;
+        // Subgroup operations are only used by `matmul_tex.wgsl`, which the host selects only
+        // when the device has `Features::SUBGROUP`.
         let caps = match precision {
-            Precision::F32 => naga::valid::Capabilities::default(),
-            Precision::F16 => naga::valid::Capabilities::SHADER_FLOAT16,
+            Precision::F32 => naga::valid::Capabilities::SUBGROUP,
+            Precision::F16 => {
+                naga::valid::Capabilities::SHADER_FLOAT16 | naga::valid::Capabilities::SUBGROUP
+            }
         };
         naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
+            .subgroup_stages(naga::valid::ShaderStages::COMPUTE)
+            .subgroup_operations(naga::valid::SubgroupOperationSet::all())
             .validate(&module)
             .map_err(|e| format!("{}: {}", family.file_name(), e.emit_to_string(&src)))?;
         Ok(())
@@ -188,6 +212,7 @@ mod tests {
             );
             let f16 = family.source(Precision::F16).unwrap_or_default();
             assert!(f16.contains("alias st = f16;") && !f16.contains(STORAGE_ALIAS_F32));
+            assert!(!f16.contains(TEXEL_F32), "{}", family.file_name());
         }
     }
 
@@ -198,6 +223,19 @@ mod tests {
             let declared = src.matches("@binding(").count();
             assert_eq!(declared, family.bindings().len(), "{}", family.file_name());
             let read_write = src.matches("read_write>").count();
+            let kinds = |b: Binding| family.bindings().iter().filter(|x| **x == b).count();
+            assert_eq!(
+                src.matches(": texture_2d<f32>;").count(),
+                kinds(Binding::Texture),
+                "{} textures",
+                family.file_name()
+            );
+            assert_eq!(
+                src.matches(": texture_storage_2d<").count(),
+                kinds(Binding::StorageTexture),
+                "{} storage textures",
+                family.file_name()
+            );
             let expected = family
                 .bindings()
                 .iter()

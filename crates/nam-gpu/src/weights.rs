@@ -2,7 +2,7 @@
 
 use nam_weights::{Scope, Weights};
 
-use crate::context::{DeviceBuffer, GpuContext};
+use crate::context::{DeviceBuffer, DeviceTexture, GpuContext, MatmulVariant};
 use crate::error::{GpuError, Result};
 use crate::shaders::Precision;
 
@@ -60,6 +60,8 @@ pub(crate) struct UnetWeights {
 #[derive(Debug)]
 pub(crate) struct Linear {
     pub weight: DeviceBuffer,
+    /// The same matrix as a texture, for the [`MatmulVariant::Texture`] render plan.
+    pub tex: Option<DeviceTexture>,
     pub out: u32,
     pub inp: u32,
     pub slope: Option<f32>,
@@ -90,6 +92,30 @@ struct Uploader<'a> {
 }
 
 impl Uploader<'_> {
+    /// A `[out, in]` linear layer as buffer, and as texture when the context's matmul uses
+    /// textures.
+    fn linear(
+        &self,
+        label: &str,
+        data: &[f32],
+        (out, inp): (usize, usize),
+        slope: Option<f32>,
+    ) -> Result<Linear> {
+        let (o, i) = (u(out, "width")?, u(inp, "width")?);
+        let tex = if self.ctx.matmul_variant() == MatmulVariant::Texture {
+            Some(self.ctx.upload_matrix(label, data, o, i, self.precision)?)
+        } else {
+            None
+        };
+        Ok(Linear {
+            weight: self.ctx.upload(label, data, self.precision)?,
+            tex,
+            out: o,
+            inp: i,
+            slope,
+        })
+    }
+
     fn get(&self, s: &Scope<'_>, name: &str, shape: &[usize]) -> Result<DeviceBuffer> {
         let data = s.get(name, shape)?;
         let label = format!("{}.{name}", s.prefix());
@@ -222,12 +248,13 @@ pub(crate) fn upload_render(
     let mut nd = Vec::with_capacity(n_nd);
     for i in 0..n_nd {
         let (inp, out) = (cfg.nd_enc[i], cfg.nd_enc[i + 1]);
-        nd.push(Linear {
-            weight: up.get(&nd_scope, &format!("l{i}.weight"), &[out, inp])?,
-            out: u(out, "width")?,
-            inp: u(inp, "width")?,
-            slope: (i + 1 < n_nd).then_some(cfg.slopes.nd_enc),
-        });
+        let name = format!("l{i}.weight");
+        nd.push(up.linear(
+            &format!("nd_enc.{name}"),
+            nd_scope.get(&name, &[out, inp])?,
+            (out, inp),
+            (i + 1 < n_nd).then_some(cfg.slopes.nd_enc),
+        )?);
     }
     let r = &cfg.render;
     let n_r = r.len() - 1;
@@ -255,19 +282,15 @@ pub(crate) fn upload_render(
             cfg.slopes.render_hidden
         }
     };
-    let mut mlp = vec![Linear {
-        weight: ctx.upload("render.l0l1", &folded, precision)?,
-        out: u(r[2], "width")?,
-        inp: u(r[0], "width")?,
-        slope: Some(last_slope(1)),
-    }];
+    let mut mlp = vec![up.linear("render.l0l1", &folded, (r[2], r[0]), Some(last_slope(1)))?];
     for i in 2..n_r {
-        mlp.push(Linear {
-            weight: up.get(&rs, &format!("l{i}.weight"), &[r[i + 1], r[i]])?,
-            out: u(r[i + 1], "width")?,
-            inp: u(r[i], "width")?,
-            slope: Some(last_slope(i)),
-        });
+        let name = format!("l{i}.weight");
+        mlp.push(up.linear(
+            &format!("render.{name}"),
+            rs.get(&name, &[r[i + 1], r[i]])?,
+            (r[i + 1], r[i]),
+            Some(last_slope(i)),
+        )?);
     }
     Ok(RenderWeights {
         octaves: u(cfg.pe_octaves, "pe_octaves")?,
