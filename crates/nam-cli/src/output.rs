@@ -10,7 +10,6 @@ use anyhow::{Context, Result, bail};
 use nam_ggx::RgbImage;
 use nam_ggx::color::srgb_encode;
 use nam_ggx::imageio::{PngDepth, encode_exr, encode_png};
-use std::io::Write;
 use std::path::Path;
 
 /// Output image format, chosen by the file extension.
@@ -44,6 +43,12 @@ impl OutputFormat {
 /// directory exists. Returns the format.
 pub fn check_output_path(path: &Path) -> Result<OutputFormat> {
     let format = OutputFormat::from_path(path)?;
+    check_output_dir(path)?;
+    Ok(format)
+}
+
+/// Checks that the directory `path` would be written into exists.
+pub fn check_output_dir(path: &Path) -> Result<()> {
     let dir = parent_dir(path);
     if !dir.is_dir() {
         bail!(
@@ -52,7 +57,7 @@ pub fn check_output_path(path: &Path) -> Result<OutputFormat> {
             dir.display()
         );
     }
-    Ok(format)
+    Ok(())
 }
 
 /// Writes a linear RGB image (the renderer's radiance) to `path` atomically, encoded per
@@ -66,25 +71,9 @@ pub fn write_linear_rgb(path: &Path, img: &RgbImage<f32>) -> Result<()> {
     write_atomic(path, &bytes)
 }
 
-/// Writes `bytes` to `path` atomically: a temporary file in the same directory is filled,
-/// flushed to disk and renamed over `path`. On error the temporary file is removed.
+/// Writes `bytes` to `path` atomically (see [`nam::write_atomic`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = parent_dir(path);
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".nam-cli-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .with_context(|| format!("{}: cannot create a temporary file", dir.display()))?;
-    tmp.write_all(bytes)
-        .and_then(|()| tmp.as_file().sync_all())
-        .with_context(|| format!("{}: write failed", path.display()))?;
-    tmp.persist(path).map_err(|e| e.error).with_context(|| {
-        format!(
-            "{}: cannot move the finished file into place",
-            path.display()
-        )
-    })?;
-    Ok(())
+    Ok(nam::write_atomic(path, bytes)?)
 }
 
 fn parent_dir(path: &Path) -> &Path {

@@ -58,3 +58,6 @@ pub use nam_ggx::{RgbImage, Vec3d};
 pub use nam_gpu;
 /// Model configuration and weights (re-exported from `nam-weights`).
 pub use nam_weights::{LogMode, ModelConfig, Weights};
+/// The wgpu version the GPU backend is built against (engines pass its `Device`/`Queue`).
+#[cfg(feature = "gpu")]
+pub use wgpu;

@@ -3,15 +3,8 @@
 use crate::error::{NamError, Result};
 use crate::model::NeuralModel;
 use nam_model::ParamMap;
-use nam_weights::{Tensor, TensorFile, write_safetensors};
-use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
-
-/// Name of the single tensor of a `.nam` file.
-const PARAMS_TENSOR: &str = "params";
-/// `format` value in a `.nam` file's config.
-const PARAMS_FORMAT: &str = "nam-params";
 
 /// A neural material: one latent vector per pixel (`H×W×64`, HWC), estimated by one model.
 #[derive(Debug, Clone, PartialEq)]
@@ -82,46 +75,13 @@ impl NeuralMaterial {
 
     /// Serialises to `.nam` bytes (safetensors, one F32 tensor `params` [H, W, 64]).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let p = &self.params;
-        let mut tensors = BTreeMap::new();
-        let tensor = Tensor::new(vec![p.height, p.width, p.channels], p.data.clone())
-            .expect("shape matches data: checked in NeuralMaterial::new");
-        tensors.insert(PARAMS_TENSOR.to_string(), tensor);
-        let config = serde_json::json!({
-            "format": PARAMS_FORMAT, "version": 1, "height": p.height, "width": p.width,
-            "model_sha256": self.model_fingerprint,
-        })
-        .to_string();
-        let metadata = BTreeMap::from([("config".to_string(), config)]);
-        write_safetensors(&tensors, &metadata)
+        self.params.to_nam_bytes(&self.model_fingerprint)
     }
 
     /// Parses `.nam` bytes; `label` names the source in errors.
     pub fn from_bytes(bytes: &[u8], label: &str) -> Result<Self> {
-        let file = TensorFile::from_bytes(bytes, label)?;
-        let bad = |why: String| NamError::Params(format!("{label}: {why}"));
-        let config = file
-            .metadata()
-            .get("config")
-            .ok_or_else(|| bad("no `config` in the metadata: not a .nam file".into()))?;
-        let fingerprint = parse_config(config).map_err(bad)?;
-        let t = file
-            .tensors()
-            .get(PARAMS_TENSOR)
-            .ok_or_else(|| bad("no `params` tensor".into()))?;
-        let &[height, width, channels] = t.shape() else {
-            return Err(bad(format!(
-                "`params` has shape {:?}, expected [H, W, C]",
-                t.shape()
-            )));
-        };
-        let map = ParamMap {
-            height,
-            width,
-            channels,
-            data: t.data().to_vec(),
-        };
-        Self::new(map, fingerprint).map_err(|e| bad(e.to_string()))
+        let (map, fingerprint) = ParamMap::from_nam_bytes(bytes, label)?;
+        Self::new(map, fingerprint)
     }
 
     /// Reads a `.nam` file.
@@ -141,7 +101,9 @@ impl NeuralMaterial {
     }
 }
 
-/// Writes `bytes` to `path` through a temporary sibling file and a rename.
+/// Writes `bytes` to `path` atomically: a uniquely named temporary file in the same folder is
+/// filled, flushed to disk and renamed over `path`; on any error it is removed, so `path` is
+/// either untouched or complete.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let io = |error| NamError::Io {
         path: path.to_path_buf(),
@@ -151,38 +113,16 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.map_err(io)
-}
-
-fn parse_config(json: &str) -> std::result::Result<String, String> {
-    let v: serde_json::Value =
-        serde_json::from_str(json).map_err(|e| format!("config is not JSON: {e}"))?;
-    match v.get("format").and_then(|f| f.as_str()) {
-        Some(PARAMS_FORMAT) => {}
-        other => {
-            return Err(format!(
-                "config format is {other:?}, expected \"{PARAMS_FORMAT}\""
-            ));
-        }
-    }
-    v.get("model_sha256")
-        .and_then(|f| f.as_str())
-        .map(str::to_string)
-        .ok_or_else(|| "config has no model_sha256".into())
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".nam-")
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(io)?;
+    tmp.write_all(bytes)
+        .and_then(|()| tmp.as_file().sync_all())
+        .map_err(io)?;
+    tmp.persist(path).map_err(|e| io(e.error))?;
+    Ok(())
 }
 
 fn short(fp: &str) -> &str {

@@ -1,66 +1,195 @@
-//! `nam-cli relight`: estimate a photo's neural material and render it under a new light.
+//! `nam-cli relight`: render a photo's (or a saved material's) neural material under new
+//! lights — one frame, or a sweep written as numbered frames, a contact sheet and a GIF.
 
 use crate::args::{parse_non_negative, parse_vec3};
-use crate::output::{check_output_path, write_linear_rgb};
+use crate::backend::ModelArgs;
+use crate::output::{check_output_dir, check_output_path, write_atomic, write_linear_rgb};
+use crate::progress;
+use crate::sweep::{LightSpec, contact_sheet, encode_gif, expand, frame_path, parse_light_spec};
 use anyhow::{Context, Result, bail};
 use nam::geometry::{Light, View};
-use nam::{NeuralModel, Photo, Scene, Vec3d, relight};
-use std::path::PathBuf;
+use nam::{NeuralMaterial, NeuralModel, Photo, Scene, Vec3d, relight};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
-/// Relight a flash photo (PNG/JPEG sRGB, EXR linear) with the embedded or a given model.
+/// Relight a flash photo (PNG/JPEG sRGB, EXR linear) or a saved material (.nam).
 ///
-/// Example: `nam-cli relight photo.png --light 1,1,4 --view 0,0,4 -o out.png`
+/// Coordinates are the surface frame: the material spans [−1,1]² on z = 0, z up, the photo
+/// was taken from (0,0,4.01) with a co-located flash. Several --light values (or
+/// orbit:N[,elevation°[,distance]]) write numbered frames OUT_000.png, OUT_001.png, …
 #[derive(Debug, clap::Args)]
+#[command(after_help = "Examples:
+  nam-cli relight photo.png --light 1,1,4 -o relit.png
+  nam-cli relight photo.png --light orbit:24 -o frames/relit.png --gif relit.gif --sheet sheet.png
+  nam-cli estimate photo.png -o photo.nam && nam-cli relight photo.nam --light 0,2,3 -o a.exr
+  nam-cli relight photo.png --directional --light 0.3,0.2,1 --orthographic --view 0,0,1 -o d.png")]
 pub struct Args {
-    /// Input photo, square (use --crop otherwise), taken from (0,0,d) with a co-located flash.
-    pub photo: PathBuf,
-    /// Point-light position x,y,z (surface frame; z > 0).
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    pub light: [f64; 3],
-    /// Viewer position x,y,z (surface frame; z > 0).
+    /// Input: a square flash photo (.png/.jpg sRGB, .exr linear) or a material saved by
+    /// `nam-cli estimate` (.nam; skips the estimator).
+    pub input: PathBuf,
+    /// Light position x,y,z (z > 0); repeat for a sweep, or orbit:N[,elevation°[,distance]]
+    /// (default elevation 45°, distance 4.01).
+    #[arg(long, required = true, value_parser = parse_light_spec, allow_hyphen_values = true)]
+    pub light: Vec<LightSpec>,
+    /// Treat --light values as directions towards a distant light (normalised).
+    #[arg(long)]
+    pub directional: bool,
+    /// Viewer position x,y,z (z > 0); the default is the capture camera.
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, default_value = "0,0,4.010781")]
     pub view: [f64; 3],
+    /// Treat --view as the direction of an orthographic viewer.
+    #[arg(long)]
+    pub orthographic: bool,
     /// Light intensity multiplier.
     #[arg(long, value_parser = parse_non_negative, default_value = "1")]
     pub intensity: f64,
-    /// Apply inverse-square falloff d²/|light − p|².
+    /// Apply inverse-square falloff d²/|light − p|² (point lights).
     #[arg(long)]
     pub falloff: bool,
-    /// Centre-crop a non-square photo to a square.
+    /// Centre-crop a non-square photo to a square (otherwise non-square photos are an error).
     #[arg(long)]
     pub crop: bool,
-    /// Model file (default: the embedded model).
-    #[arg(long)]
-    pub model: Option<PathBuf>,
-    /// Output image (.png sRGB 8-bit or .exr linear).
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Output image (.png sRGB 8-bit or .exr linear); numbered per frame for sweeps.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Also write all frames as one contact-sheet image (.png or .exr).
+    #[arg(long, value_name = "FILE")]
+    pub sheet: Option<PathBuf>,
+    /// Also write all frames as a looping animated GIF.
+    #[arg(long, value_name = "FILE")]
+    pub gif: Option<PathBuf>,
+    /// GIF frame delay in milliseconds.
+    #[arg(long, default_value_t = 80)]
+    pub gif_delay: u32,
 }
 
 /// Runs the subcommand.
 pub fn run(args: &Args) -> Result<()> {
     check_output_path(&args.output)?;
-    if args.light[2] <= 0.0 || args.view[2] <= 0.0 {
-        bail!("light and view must be above the surface (z > 0)");
+    if let Some(sheet) = &args.sheet {
+        check_output_path(sheet)?;
     }
-    let model = match &args.model {
-        Some(p) => NeuralModel::from_file(p)?,
-        None => NeuralModel::embedded()?,
-    };
-    let photo = if args.crop {
-        Photo::load_cropped(&args.photo)
-    } else {
-        Photo::load(&args.photo)
+    if let Some(gif) = &args.gif {
+        check_gif_path(gif)?;
     }
-    .with_context(|| format!("reading {}", args.photo.display()))?;
-    let material = model.estimate(&photo)?;
+    let lights = expand(&args.light)?;
+    let scenes: Vec<Scene> = lights
+        .iter()
+        .map(|&l| scene(args, l))
+        .collect::<Result<_>>()?;
+    let model = args.model.load()?;
+    let material = load_material(&model, &args.input, args.crop)?;
+
+    let (h, _) = material.size();
+    let started = Instant::now();
+    let bar = progress::bar(
+        scenes.len() as u64,
+        "relighting",
+        scenes.len() as f64 * seconds_per_frame(h),
+    );
+    let mut frames = Vec::with_capacity(scenes.len());
+    for (k, scene) in scenes.iter().enumerate() {
+        let img = relight(&model, &material, scene)?;
+        let path = frame_path(&args.output, k, scenes.len());
+        write_linear_rgb(&path, &img)?;
+        if args.sheet.is_some() || args.gif.is_some() {
+            frames.push(img);
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    if let Some(sheet) = &args.sheet {
+        write_linear_rgb(sheet, &contact_sheet(&frames)?)?;
+    }
+    if let Some(gif) = &args.gif {
+        write_atomic(gif, &encode_gif(&frames, args.gif_delay)?)?;
+    }
+    if scenes.len() > 1 {
+        eprintln!(
+            "wrote {} frames in {:.1} s: {} … {}",
+            scenes.len(),
+            started.elapsed().as_secs_f64(),
+            frame_path(&args.output, 0, scenes.len()).display(),
+            frame_path(&args.output, scenes.len() - 1, scenes.len()).display()
+        );
+    }
+    Ok(())
+}
+
+/// The scene of one frame; lights and viewers on or below the surface are errors here (the
+/// library would render them black).
+fn scene(args: &Args, light: [f64; 3]) -> Result<Scene> {
+    if light[2] <= 0.0 {
+        bail!(
+            "light {light:?} is not above the surface: z must be > 0 (the material lies on z = 0)"
+        );
+    }
+    if args.view[2] <= 0.0 {
+        bail!(
+            "view {:?} is not above the surface: z must be > 0 (the material lies on z = 0)",
+            args.view
+        );
+    }
+    let l = Vec3d::from_array(light);
+    let v = Vec3d::from_array(args.view);
     let mut scene = Scene::new(
-        Light::Point(Vec3d::from_array(args.light)),
-        View::Point(Vec3d::from_array(args.view)),
+        if args.directional {
+            Light::Directional(l)
+        } else {
+            Light::Point(l)
+        },
+        if args.orthographic {
+            View::Orthographic(v)
+        } else {
+            View::Point(v)
+        },
     );
     scene.intensity = args.intensity;
     scene.falloff = args.falloff;
-    let img = relight(&model, &material, &scene)?;
-    write_linear_rgb(&args.output, &img)?;
-    Ok(())
+    scene.validate()?;
+    Ok(scene)
+}
+
+/// A photo is estimated (U-Net); a `.nam` file is loaded and checked against the model.
+pub fn load_material(model: &NeuralModel, input: &Path, crop: bool) -> Result<NeuralMaterial> {
+    let is_nam = input
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("nam"));
+    if is_nam {
+        if crop {
+            bail!("--crop applies to photos, not to a saved material");
+        }
+        let material = NeuralMaterial::load(input)?;
+        material.check_model(model).with_context(|| {
+            format!(
+                "{} was estimated by another model; pass that model with --model",
+                input.display()
+            )
+        })?;
+        return Ok(material);
+    }
+    let photo = if crop {
+        Photo::load_cropped(input)
+    } else {
+        Photo::load(input)
+    }
+    .with_context(|| format!("reading {}", input.display()))?;
+    Ok(model.estimate(&photo)?)
+}
+
+fn check_gif_path(path: &Path) -> Result<()> {
+    if !path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("gif"))
+    {
+        bail!("{}: --gif output must end in .gif", path.display());
+    }
+    check_output_dir(path)
+}
+
+/// Rough CPU cost of one relit frame, to decide whether a progress bar is worth showing.
+fn seconds_per_frame(side: usize) -> f64 {
+    (side * side) as f64 / (256.0 * 256.0) * 0.4
 }

@@ -1,0 +1,61 @@
+//! `nam-cli estimate`: run the estimator once and save the material (.nam), so later
+//! `relight` calls skip the U-Net.
+
+use crate::backend::ModelArgs;
+use crate::cmd::relight::load_material;
+use anyhow::{Result, bail};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Estimate a photo's neural material and save it as a .nam file (docs/FORMAT.md).
+#[derive(Debug, clap::Args)]
+#[command(after_help = "Example:
+  nam-cli estimate photo.png -o photo.nam
+  nam-cli relight photo.nam --light orbit:12 -o frames/photo.png")]
+pub struct Args {
+    /// Square flash photo (.png/.jpg sRGB, .exr linear), taken from (0,0,4.01) with a
+    /// co-located flash.
+    pub photo: PathBuf,
+    /// Centre-crop a non-square photo to a square.
+    #[arg(long)]
+    pub crop: bool,
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Output material file (.nam: safetensors with the param map and the model's SHA-256).
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// Runs the subcommand.
+pub fn run(args: &Args) -> Result<()> {
+    if !args
+        .output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("nam"))
+    {
+        bail!("{}: the output must end in .nam", args.output.display());
+    }
+    crate::output::check_output_dir(&args.output)?;
+    if args
+        .photo
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("nam"))
+    {
+        bail!(
+            "{}: already a material; estimate takes a photo",
+            args.photo.display()
+        );
+    }
+    let model = args.model.load()?;
+    let started = Instant::now();
+    let material = load_material(&model, &args.photo, args.crop)?;
+    let (h, w) = material.size();
+    material.save(&args.output)?;
+    eprintln!(
+        "estimated {h}×{w}×{} params in {:.0} ms → {}",
+        material.params().channels,
+        started.elapsed().as_secs_f64() * 1e3,
+        args.output.display()
+    );
+    Ok(())
+}
