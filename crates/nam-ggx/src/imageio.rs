@@ -159,37 +159,88 @@ pub fn read_rgb(path: &Path) -> Result<(RgbImage<f32>, FileKind)> {
         path: path.to_path_buf(),
         error,
     })?;
+    Ok((decode_rgb(&bytes, kind, path)?, kind))
+}
+
+/// Decodes an image held in memory as `kind` (what [`read_rgb`] does after reading the file);
+/// `label` names the source in errors. Corrupt or hostile bytes give an error, never a panic:
+/// the declared size is checked against [`MAX_IMAGE_SIDE`] and [`MAX_IMAGE_PIXELS`] before any
+/// pixel buffer is allocated, and non-finite values are rejected.
+pub fn decode_rgb(bytes: &[u8], kind: FileKind, label: &Path) -> Result<RgbImage<f32>> {
     if bytes.is_empty() {
         return Err(GgxError::Decode {
-            path: path.to_path_buf(),
+            path: label.to_path_buf(),
             reason: "the file is empty (0 bytes)".into(),
         });
     }
     let img = match kind {
-        FileKind::Ldr => decode_ldr(&bytes),
-        FileKind::Exr => decode_exr(&bytes),
+        FileKind::Ldr => decode_ldr(bytes),
+        FileKind::Exr => decode_exr(bytes),
     }
     .map_err(|reason| GgxError::Decode {
-        path: path.to_path_buf(),
+        path: label.to_path_buf(),
         reason,
     })?;
-    let img = RgbImage::from_vec(img.0, img.1, img.2).map_err(|e| e.in_file(path))?;
+    let img = RgbImage::from_vec(img.0, img.1, img.2).map_err(|e| e.in_file(label))?;
     if let Some((row, col)) = img.first_non_finite() {
         return Err(GgxError::NonFinite {
             what: "image",
             row,
             col,
         }
-        .in_file(path));
+        .in_file(label));
     }
-    Ok((img, kind))
+    Ok(img)
+}
+
+/// Largest accepted image side when decoding, in pixels: a 4-panel SVBRDF file of 4096² maps is
+/// 16384 wide. Checked against the file's *header* before any pixel buffer is allocated.
+pub const MAX_IMAGE_SIDE: usize = 16_384;
+
+/// Largest accepted pixel count when decoding (64 Mpx: a 16384×4096 4-panel file; 768 MiB as
+/// f32 RGB). Checked against the header before any pixel buffer is allocated.
+pub const MAX_IMAGE_PIXELS: usize = 1 << 26;
+
+/// Largest decoder-internal buffer (the `image` crate's own limit, stated here so it is ours).
+const MAX_DECODER_ALLOC: u64 = 1 << 30;
+
+/// Rejects a declared size before anything of that size is allocated.
+fn check_declared_size(width: usize, height: usize) -> std::result::Result<(), String> {
+    if width == 0 || height == 0 {
+        return Err(format!(
+            "the header declares an empty {width}×{height} image"
+        ));
+    }
+    if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+        return Err(format!(
+            "the header declares {width}×{height} (W×H) pixels; the largest supported side is \
+             {MAX_IMAGE_SIDE}"
+        ));
+    }
+    if width.saturating_mul(height) > MAX_IMAGE_PIXELS {
+        return Err(format!(
+            "the header declares {width}×{height} (W×H) pixels; at most {MAX_IMAGE_PIXELS} \
+             pixels are supported"
+        ));
+    }
+    Ok(())
 }
 
 fn decode_ldr(bytes: &[u8]) -> std::result::Result<(usize, usize, Vec<f32>), String> {
-    let reader = ::image::ImageReader::new(Cursor::new(bytes))
+    use ::image::ImageDecoder;
+    let mut reader = ::image::ImageReader::new(Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())?;
-    let dynamic = reader.decode().map_err(|e| e.to_string())?;
+    let mut limits = ::image::Limits::default();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE as u32);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE as u32);
+    limits.max_alloc = Some(MAX_DECODER_ALLOC);
+    reader.limits(limits);
+    // Header first: the declared size is checked before the decoder allocates its buffer.
+    let decoder = reader.into_decoder().map_err(|e| e.to_string())?;
+    let (w, h) = decoder.dimensions();
+    check_declared_size(w as usize, h as usize)?;
+    let dynamic = ::image::DynamicImage::from_decoder(decoder).map_err(|e| e.to_string())?;
     let rgb = dynamic.to_rgb32f();
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
     Ok((w, h, rgb.into_raw()))
@@ -197,6 +248,13 @@ fn decode_ldr(bytes: &[u8]) -> std::result::Result<(usize, usize, Vec<f32>), Str
 
 fn decode_exr(bytes: &[u8]) -> std::result::Result<(usize, usize, Vec<f32>), String> {
     use exr::prelude::*;
+    // Header first: the pixel closure below allocates width·height·3 floats, so every layer's
+    // declared size is checked before the pixels are read.
+    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+        .map_err(|e| e.to_string())?;
+    for header in meta.headers.iter() {
+        check_declared_size(header.layer_size.width(), header.layer_size.height())?;
+    }
     type Pixels = (usize, Vec<f32>);
     let image = read()
         .no_deep_data()

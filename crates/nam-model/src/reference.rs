@@ -4,6 +4,8 @@
 //! accumulation for every dot product and reduction. Slow; used to check the
 //! fast path and as executable documentation.
 
+use std::cell::RefCell;
+
 use nam_weights::{Scope, Weights};
 
 use crate::encoding::{direction_triple, encode_f64, encode_into};
@@ -60,6 +62,47 @@ impl Acc for f64 {
     }
     fn as_f64(self) -> f64 {
         self
+    }
+}
+
+/// The largest magnitude of every intermediate activation of one reference evaluation, in
+/// evaluation order, named after the weights that produce it (`est.enc1.0.ha1.gate` is the
+/// gate convolution's output before the sigmoid, `render.l3` the fourth render layer before its
+/// activation). Values are recorded where they are stored between operations, before any
+/// activation function, so each entry bounds what an f16 activation buffer would hold.
+/// A NaN counts as +∞.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ActivationRanges {
+    /// `(name, max |value|)` in evaluation order.
+    pub entries: Vec<(String, f32)>,
+}
+
+impl ActivationRanges {
+    fn record(&mut self, name: String, values: &[f32]) {
+        let m = values.iter().fold(0.0f32, |m, &v| {
+            if v.is_nan() {
+                f32::INFINITY
+            } else {
+                m.max(v.abs())
+            }
+        });
+        self.entries.push((name, m));
+    }
+
+    /// Takes the element-wise maximum with another trace (entries matched by name; names
+    /// missing here are appended).
+    pub fn merge(&mut self, other: &Self) {
+        for (name, m) in &other.entries {
+            match self.entries.iter_mut().find(|(n, _)| n == name) {
+                Some((_, v)) => *v = v.max(*m),
+                None => self.entries.push((name.clone(), *m)),
+            }
+        }
+    }
+
+    /// The largest magnitude over all entries (0 when empty).
+    pub fn max(&self) -> f32 {
+        self.entries.iter().fold(0.0, |a, (_, m)| a.max(*m))
     }
 }
 
@@ -214,9 +257,23 @@ fn instance_norm<A: Acc>(x: &Chw, eps: f32) -> Chw {
 struct Ctx {
     eps: f32,
     ha_slope: f32,
+    /// Activation ranges, when tracing.
+    trace: Option<RefCell<ActivationRanges>>,
 }
 
 impl Ctx {
+    /// Records `x` as activation `what` of the layer at `p` (when tracing).
+    fn rec(&self, p: &Scope<'_>, what: &str, x: &Chw) {
+        if let Some(t) = &self.trace {
+            let name = if what.is_empty() {
+                p.prefix().to_string()
+            } else {
+                format!("{}.{what}", p.prefix())
+            };
+            t.borrow_mut().record(name, &x.d);
+        }
+    }
+
     fn ha<A: Acc>(&self, x: &Chw, p: &Scope<'_>, co: usize, s: usize) -> Result<Chw> {
         let ci = x.c;
         let g = p.get("gate.weight", &[co, ci, 3, 3])?;
@@ -224,28 +281,44 @@ impl Ctx {
         let i1a = p.get("inc1a.weight", &[co, ci, 3, 3])?;
         let i1b = p.get("inc1b.weight", &[co / 2, co, 3, 3])?;
         let i2 = p.get("inc2.weight", &[co / 2, ci, 3, 3])?;
-        let a = conv::<A>(x, g, co, 3, s, 1).map(sigmoid);
-        let b = conv::<A>(&instance_norm::<A>(x, self.eps), f, co, 3, s, 1)
-            .map(|v| leaky(v, self.ha_slope));
-        let c1 = conv::<A>(&conv::<A>(x, i1a, co, 3, 1, 1), i1b, co / 2, 3, s, 1);
+        let a = conv::<A>(x, g, co, 3, s, 1);
+        self.rec(p, "gate", &a);
+        let a = a.map(sigmoid);
+        let norm = instance_norm::<A>(x, self.eps);
+        self.rec(p, "norm", &norm);
+        let b = conv::<A>(&norm, f, co, 3, s, 1);
+        self.rec(p, "feat", &b);
+        let b = b.map(|v| leaky(v, self.ha_slope));
+        let c1a = conv::<A>(x, i1a, co, 3, 1, 1);
+        self.rec(p, "inc1a", &c1a);
+        let c1 = conv::<A>(&c1a, i1b, co / 2, 3, s, 1);
+        self.rec(p, "inc1b", &c1);
         let c2 = conv::<A>(x, i2, co / 2, 3, s, 1);
-        Ok(a.zip(&b, |a, b| a * b).zip(&c1.concat(&c2), |ab, c| ab + c))
+        self.rec(p, "inc2", &c2);
+        let out = a.zip(&b, |a, b| a * b).zip(&c1.concat(&c2), |ab, c| ab + c);
+        self.rec(p, "out", &out);
+        Ok(out)
     }
 
     fn basic<A: Acc>(&self, x: &Chw, p: &Scope<'_>, co: usize, s: usize) -> Result<Chw> {
         let y = self.ha::<A>(x, &p.scope("ha1"), co, s)?;
-        let y = y
-            .affine(Some(p.get("bn1.scale", &[co])?), p.get("bn1.shift", &[co])?)
-            .map(relu);
+        let y = y.affine(Some(p.get("bn1.scale", &[co])?), p.get("bn1.shift", &[co])?);
+        self.rec(p, "bn1", &y);
+        let y = y.map(relu);
         let y = self.ha::<A>(&y, &p.scope("ha2"), co, 1)?;
         let y = y.affine(Some(p.get("bn2.scale", &[co])?), p.get("bn2.shift", &[co])?);
+        self.rec(p, "bn2", &y);
         let id = if x.c != co || s != 1 {
-            conv::<A>(x, p.get("down.weight", &[co, x.c, 1, 1])?, co, 1, s, 0)
-                .affine(None, p.get("down.bias", &[co])?)
+            let d = conv::<A>(x, p.get("down.weight", &[co, x.c, 1, 1])?, co, 1, s, 0)
+                .affine(None, p.get("down.bias", &[co])?);
+            self.rec(p, "down", &d);
+            d
         } else {
             x.clone()
         };
-        Ok(y.zip(&id, |a, b| relu(a + b)))
+        let out = y.zip(&id, |a, b| relu(a + b));
+        self.rec(p, "", &out);
+        Ok(out)
     }
 
     fn reverse<A: Acc>(&self, x: &Chw, p: &Scope<'_>, co: usize) -> Result<Chw> {
@@ -257,10 +330,12 @@ impl Ctx {
             co,
             4,
             1,
-        )
-        .map(relu);
+        );
+        self.rec(p, "up4", &up4);
+        let up4 = up4.map(relu);
         let y = conv::<A>(&up4, p.get("conv.weight", &[co, co, 3, 3])?, co, 3, 1, 1)
             .affine(None, p.get("conv.bias", &[co])?);
+        self.rec(p, "conv", &y);
         let up2 = conv_t::<A>(
             x,
             p.get("up2.weight", &[ci, co, 2, 2])?,
@@ -269,7 +344,10 @@ impl Ctx {
             2,
             0,
         );
-        Ok(y.zip(&up2, |a, b| relu(a + b)))
+        self.rec(p, "up2", &up2);
+        let out = y.zip(&up2, |a, b| relu(a + b));
+        self.rec(p, "", &out);
+        Ok(out)
     }
 }
 
@@ -283,9 +361,25 @@ pub fn estimate(
     width: usize,
     acc: Accumulate,
 ) -> Result<ParamMap> {
+    let (map, _) = match acc {
+        Accumulate::F32 => estimate_impl::<f32>(weights, input, height, width, false),
+        Accumulate::F64 => estimate_impl::<f64>(weights, input, height, width, false),
+    }?;
+    Ok(map)
+}
+
+/// [`estimate`], also returning the range of every intermediate activation (for the f16
+/// safety analysis: which layers an f16 activation buffer could overflow in).
+pub fn estimate_traced(
+    weights: &Weights,
+    input: &[f32],
+    height: usize,
+    width: usize,
+    acc: Accumulate,
+) -> Result<(ParamMap, ActivationRanges)> {
     match acc {
-        Accumulate::F32 => estimate_impl::<f32>(weights, input, height, width),
-        Accumulate::F64 => estimate_impl::<f64>(weights, input, height, width),
+        Accumulate::F32 => estimate_impl::<f32>(weights, input, height, width, true),
+        Accumulate::F64 => estimate_impl::<f64>(weights, input, height, width, true),
     }
 }
 
@@ -294,7 +388,8 @@ fn estimate_impl<A: Acc>(
     input: &[f32],
     height: usize,
     width: usize,
-) -> Result<ParamMap> {
+    traced: bool,
+) -> Result<(ParamMap, ActivationRanges)> {
     let cfg = weights.config();
     check_image(height, width)?;
     check_len(
@@ -316,8 +411,10 @@ fn estimate_impl<A: Acc>(
     let ctx = Ctx {
         eps: cfg.norm_eps,
         ha_slope: cfg.slopes.ha,
+        trace: traced.then(|| RefCell::new(ActivationRanges::default())),
     };
     let est = weights.scope("est");
+    ctx.rec(&est, "input", &x);
     let c = cfg.width;
     let x = conv::<A>(
         &x,
@@ -327,6 +424,7 @@ fn estimate_impl<A: Acc>(
         1,
         3,
     );
+    ctx.rec(&est, "stem", &x);
     let mut skips = Vec::new();
     let mut x = x;
     for (k, w) in [c, 2 * c, 4 * c, 8 * c].into_iter().enumerate() {
@@ -346,6 +444,7 @@ fn estimate_impl<A: Acc>(
     let x = ctx.basic::<A>(&x, &est.scope("dec4.1"), c, 1)?;
     let pc = cfg.param_channels;
     let x = conv::<A>(&x, est.get("head.weight", &[pc, c, 7, 7])?, pc, 7, 1, 3);
+    ctx.rec(&est, "head", &x);
     let mut data = Vec::with_capacity(height * width * pc);
     for y in 0..height {
         for xx in 0..width {
@@ -354,12 +453,13 @@ fn estimate_impl<A: Acc>(
             }
         }
     }
-    Ok(ParamMap {
+    let map = ParamMap {
         height,
         width,
         channels: pc,
         data,
-    })
+    };
+    Ok((map, ctx.trace.map(RefCell::into_inner).unwrap_or_default()))
 }
 
 /// Reference positional encoding: f64 `sin(2^k·π·c)` rounded to f32.
@@ -407,10 +507,28 @@ pub fn render(
     wo: [f32; 3],
     acc: Accumulate,
 ) -> Result<RenderTrace> {
+    let mut ranges = ActivationRanges::default();
     match acc {
-        Accumulate::F32 => render_impl::<f32>(weights, params, wi, wo),
-        Accumulate::F64 => render_impl::<f64>(weights, params, wi, wo),
+        Accumulate::F32 => render_impl::<f32>(weights, params, wi, wo, &mut ranges),
+        Accumulate::F64 => render_impl::<f64>(weights, params, wi, wo, &mut ranges),
     }
+}
+
+/// [`render`], also returning the range of every layer's output before its activation
+/// (`render.input` is the params ‖ ND_enc vector, `nd_enc.l0` … `render.l6`).
+pub fn render_traced(
+    weights: &Weights,
+    params: &[f32],
+    wi: [f32; 3],
+    wo: [f32; 3],
+    acc: Accumulate,
+) -> Result<(RenderTrace, ActivationRanges)> {
+    let mut ranges = ActivationRanges::default();
+    let t = match acc {
+        Accumulate::F32 => render_impl::<f32>(weights, params, wi, wo, &mut ranges),
+        Accumulate::F64 => render_impl::<f64>(weights, params, wi, wo, &mut ranges),
+    }?;
+    Ok((t, ranges))
 }
 
 fn render_impl<A: Acc>(
@@ -418,6 +536,7 @@ fn render_impl<A: Acc>(
     params: &[f32],
     wi: [f32; 3],
     wo: [f32; 3],
+    ranges: &mut ActivationRanges,
 ) -> Result<RenderTrace> {
     let cfg = weights.config();
     check_len("params", cfg.param_channels, params.len())?;
@@ -430,9 +549,11 @@ fn render_impl<A: Acc>(
     };
     let nd_w = &cfg.nd_enc;
     let mut h = encoded.clone();
+    ranges.record("nd_enc.input".into(), &h);
     for i in 0..nd_w.len() - 1 {
         let w = weights.get(&format!("nd_enc.l{i}.weight"), &[nd_w[i + 1], nd_w[i]])?;
         h = dense::<A>(w, nd_w[i + 1], &h);
+        ranges.record(format!("nd_enc.l{i}"), &h);
         if i + 2 < nd_w.len() {
             h.iter_mut().for_each(|v| *v = leaky(*v, cfg.slopes.nd_enc));
         }
@@ -440,10 +561,12 @@ fn render_impl<A: Acc>(
     let nd = h;
     let r = &cfg.render;
     let mut h: Vec<f32> = params.iter().chain(&nd).copied().collect();
+    ranges.record("render.input".into(), &h);
     let layers = r.len() - 1;
     for i in 0..layers {
         let w = weights.get(&format!("render.l{i}.weight"), &[r[i + 1], r[i]])?;
         h = dense::<A>(w, r[i + 1], &h);
+        ranges.record(format!("render.l{i}"), &h);
         let slope = if i == 0 {
             None
         } else if i + 1 == layers {
