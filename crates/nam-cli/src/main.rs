@@ -1,12 +1,15 @@
 //! `nam-cli`: the command-line front end of nam (DESIGN.md §1).
 //!
 //! One module per subcommand under `cmd/`; shared helpers: `args` (value parsers),
-//! `output` (atomic image writing), `progress` (indicatif bars for long work).
+//! `backend` (`--model`, `--backend`, `--f16`), `output` (atomic image writing),
+//! `progress` (indicatif bars for long work), `sweep` (light sweeps, contact sheets, GIFs).
 
 mod args;
+mod backend;
 mod cmd;
 mod output;
 mod progress;
+mod sweep;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -23,8 +26,14 @@ struct Cli {
 enum Command {
     /// Render a 4-panel GGX SVBRDF map (the analytic reference) for one light and view.
     RenderGgx(cmd::render_ggx::Args),
-    /// Estimate a photo's neural material and relight it for a new light and view.
+    /// Relight a photo or a saved material (.nam) for new lights and views (sweeps too).
     Relight(cmd::relight::Args),
+    /// Estimate a photo's neural material once and save it (.nam).
+    Estimate(cmd::estimate::Args),
+    /// Describe a model (.safetensors) or a material (.nam).
+    Info(cmd::info::Args),
+    /// Error against run time on the held-out set: Markdown table and PNG plot.
+    Report(cmd::report::Args),
 }
 
 fn main() -> ExitCode {
@@ -32,6 +41,9 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::RenderGgx(args) => cmd::render_ggx::run(&args),
         Command::Relight(args) => cmd::relight::run(&args),
+        Command::Estimate(args) => cmd::estimate::run(&args),
+        Command::Info(args) => cmd::info::run(&args),
+        Command::Report(args) => cmd::report::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

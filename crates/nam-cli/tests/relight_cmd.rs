@@ -2,8 +2,10 @@
 //! bad inputs, with the embedded model.
 
 use nam_ggx::imageio::read_rgb;
+mod common;
+
+use common::{expect_failure, ok, root, run, s, tmp};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 /// CPU and GPU (lavapipe) renders of the same photo agree to this relative error. The networks
 /// agree to 3e-5 on identical inputs, but the CPU point-light path derives directions in f32
@@ -11,33 +13,6 @@ use std::process::{Command, Output};
 /// positional-encoding octave (2^15) turns that 1e-7 rounding into ~1e-2 phase differences
 /// (the facade's path tests use the same 2e-2).
 const GPU_REL_TOL: f32 = 2e-2;
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nam-cli"))
-        .args(args)
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run nam-cli: {e}"))
-}
-
-fn ok(args: &[&str]) -> String {
-    let o = run(args);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "nam-cli {args:?} failed:\n{err}");
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap_or_else(|| panic!("non-UTF-8 path"))
-}
-
-fn tmp() -> tempfile::TempDir {
-    tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"))
-}
 
 /// A small square photo: the bundled example photo downscaled to `side` pixels (PNG).
 fn small_photo(dir: &Path, side: u32) -> PathBuf {
@@ -54,25 +29,6 @@ fn read_exr(path: &Path) -> Vec<f32> {
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
         .0
         .into_vec()
-}
-
-/// Runs a command that must fail: nonzero exit, `needle` in stderr, `out` not created and no
-/// temporary file left in its folder.
-fn expect_failure(args: &[&str], out: &Path, needle: &str) {
-    let o = run(args);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "should fail: {args:?}");
-    assert!(err.contains(needle), "stderr lacks {needle:?}:\n{err}");
-    assert!(!err.contains("panicked"), "panic: {err}");
-    assert!(!out.exists(), "{} must not exist", out.display());
-    let dir = out.parent().unwrap_or_else(|| Path::new("."));
-    let leftovers: Vec<_> = std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
-        .collect();
-    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
 }
 
 #[test]
@@ -96,6 +52,12 @@ fn readme_command_relights_the_bundled_photo() {
     assert_eq!(img.dimensions(), (256, 256));
     let mean = img.as_raw().iter().map(|&v| f64::from(v)).sum::<f64>() / img.as_raw().len() as f64;
     assert!(mean > 5.0 && mean < 250.0, "implausible mean code {mean}");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(&out).map(|m| m.permissions().mode() & 0o777);
+        assert_eq!(mode.ok(), Some(0o644), "outputs are not left owner-only");
+    }
 }
 
 #[test]
@@ -210,25 +172,17 @@ fn gpu_backend_matches_the_cpu() {
     let dir = tmp();
     let photo = small_photo(dir.path(), 16);
     let (c, g) = (dir.path().join("c.exr"), dir.path().join("g.exr"));
-    let args = |out: &Path, backend: &'static str| -> Vec<String> {
-        [
-            "relight",
-            s(&photo),
-            "--light",
-            "1,0.5,2.5",
-            "-o",
-            s(out),
-            "--backend",
-            backend,
-        ]
-        .map(String::from)
-        .to_vec()
-    };
-    let gpu = Command::new(env!("CARGO_BIN_EXE_nam-cli"))
-        .args(args(&g, "gpu"))
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .unwrap_or_else(|e| panic!("{e}"));
+    let (p, light) = (s(&photo), "1,0.5,2.5");
+    let gpu = run(&[
+        "relight",
+        p,
+        "--light",
+        light,
+        "-o",
+        s(&g),
+        "--backend",
+        "gpu",
+    ]);
     let err = String::from_utf8_lossy(&gpu.stderr);
     if !gpu.status.success() && err.contains("no wgpu adapter") {
         eprintln!("skipped: no wgpu adapter on this machine ({err})");
@@ -236,8 +190,16 @@ fn gpu_backend_matches_the_cpu() {
     }
     assert!(gpu.status.success(), "{err}");
     assert!(err.contains("backend: GPU"), "{err}");
-    let cpu_args = args(&c, "cpu");
-    ok(&cpu_args.iter().map(String::as_str).collect::<Vec<_>>());
+    ok(&[
+        "relight",
+        p,
+        "--light",
+        light,
+        "-o",
+        s(&c),
+        "--backend",
+        "cpu",
+    ]);
     let (c, g) = (read_exr(&c), read_exr(&g));
     for (k, (a, b)) in c.iter().zip(&g).enumerate() {
         assert!(

@@ -3,33 +3,16 @@
 use nam_ggx::color::srgb_encode;
 use nam_ggx::imageio::read_rgb;
 use nam_ggx::{GgxPoint, Light, RenderSettings, SvbrdfMaps, Vec3, View, render};
+mod common;
+
+use common::{expect_failure, run, s, stderr, tmp};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 /// One 8-bit code: the PNG output is quantised after sRGB encoding.
 const PNG_CODE_TOL: f32 = 1.0 / 255.0 + 1e-6;
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_nam-cli"))
-}
-
 fn example_maps() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets/example_maps.png")
-}
-
-fn run(args: &[&str]) -> Output {
-    bin()
-        .args(args)
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run nam-cli: {e}"))
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap_or_else(|| panic!("non-UTF-8 temp path"))
 }
 
 /// A small glossy test material (16×16, 4-panel PNG).
@@ -46,26 +29,6 @@ fn small_maps(dir: &Path) -> (PathBuf, SvbrdfMaps) {
     // Reload so the comparison sees the same quantised values as the CLI.
     let maps = SvbrdfMaps::load(&path).unwrap_or_else(|e| panic!("{e}"));
     (path, maps)
-}
-
-fn tmp() -> tempfile::TempDir {
-    tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"))
-}
-
-fn expect_failure(args: &[&str], out: &Path, needle: &str) {
-    let o = run(args);
-    let err = stderr(&o);
-    assert!(!o.status.success(), "should fail: {args:?}");
-    assert!(err.contains(needle), "stderr lacks {needle:?}:\n{err}");
-    assert!(!out.exists(), "no output file may be left behind");
-    let dir = out.parent().unwrap_or_else(|| Path::new("."));
-    let leftovers: Vec<_> = std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
-        .collect();
-    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
 }
 
 #[test]

@@ -119,10 +119,30 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         .tempfile_in(dir)
         .map_err(io)?;
     tmp.write_all(bytes)
+        .and_then(|()| final_permissions(path, tmp.as_file()))
+        .and_then(|perm| tmp.as_file().set_permissions(perm))
         .and_then(|()| tmp.as_file().sync_all())
         .map_err(io)?;
     tmp.persist(path).map_err(|e| io(e.error))?;
     Ok(())
+}
+
+/// The permissions a replaced file keeps, or a new file's usual `rw-r--r--` on Unix
+/// (temporary files are created owner-only).
+fn final_permissions(path: &Path, tmp: &std::fs::File) -> std::io::Result<std::fs::Permissions> {
+    if let Ok(meta) = std::fs::metadata(path) {
+        return Ok(meta.permissions());
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = tmp;
+        Ok(std::fs::Permissions::from_mode(0o644))
+    }
+    #[cfg(not(unix))]
+    {
+        Ok(tmp.metadata()?.permissions())
+    }
 }
 
 fn short(fp: &str) -> &str {

@@ -1,4 +1,7 @@
 //! One module per subcommand: each has an `Args` (clap derive) and a `run(&Args)`.
 
+pub mod estimate;
+pub mod info;
 pub mod relight;
+pub mod report;
 pub mod render_ggx;
