@@ -35,14 +35,16 @@ struct TexMatmulParams {
 @group(0) @binding(3) var yt: texture_storage_2d<rgba32float, write>;
 @group(0) @binding(4) var<storage, read_write> ybuf: array<st>;
 
-// Activation, with channels n0 .. n0 + 3 at or past `cols` zeroed.
+// Activation, with channels n0 .. n0 + 3 at or past `cols` zeroed, rounded to the storage
+// type here (round to nearest) so that texture stores, whose f32 -> f16 conversion may
+// truncate on some drivers, see exactly representable values.
 fn epilogue(v: vec4<f32>, n0: u32) -> vec4<f32> {
     var a = v;
     if p.act == 2u {
         a = select(v * p.slope, v, v >= vec4<f32>(0.0));
     }
     let n = vec4<u32>(n0, n0 + 1u, n0 + 2u, n0 + 3u);
-    return select(vec4<f32>(0.0), a, n < vec4<u32>(p.cols));
+    return vec4<f32>(vec4<st>(select(vec4<f32>(0.0), a, n < vec4<u32>(p.cols))));
 }
 
 fn store4(m: u32, n0: u32, v: vec4<f32>) {

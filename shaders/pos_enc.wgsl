@@ -103,5 +103,6 @@ fn pos_enc_tex(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     let t = idx % p.out_stride;
     let c = 4u * t;
     let v = vec4<f32>(channel(row, c), channel(row, c + 1u), channel(row, c + 2u), channel(row, c + 3u));
-    textureStore(dst_tex, vec2<u32>(t, row), v);
+    // Rounded to the storage type first (see `epilogue` in matmul_tex.wgsl).
+    textureStore(dst_tex, vec2<u32>(t, row), vec4<f32>(vec4<st>(v)));
 }

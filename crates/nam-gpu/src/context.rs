@@ -433,20 +433,8 @@ impl GpuContext {
     }
 
     /// Records a dispatch of `key` with `uniform` words as binding 0 (when the family has one)
-    /// followed by `buffers` in binding order.
+    /// followed by `bound` (buffers and texture views) in binding order.
     pub(crate) fn dispatch(
-        &self,
-        key: &PipelineKey,
-        uniform: Option<&[u32]>,
-        buffers: &[&wgpu::Buffer],
-        groups: [u32; 3],
-    ) -> Result<Dispatch> {
-        let res: Vec<Res<'_>> = buffers.iter().map(|b| Res::Buf(b)).collect();
-        self.dispatch_with(key, uniform, &res, groups)
-    }
-
-    /// As [`GpuContext::dispatch`] with buffers and textures.
-    pub(crate) fn dispatch_with(
         &self,
         key: &PipelineKey,
         uniform: Option<&[u32]>,

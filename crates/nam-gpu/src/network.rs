@@ -8,7 +8,9 @@ use crate::context::{DeviceBuffer, DeviceTexture, Dispatch, GpuContext, MatmulVa
 use crate::error::{GpuError, Result};
 use crate::ops::{self, Act, ConvShape, Elementwise, GateTail, Rows, TexOut, View};
 use crate::shaders::Precision;
-use crate::weights::{self, BasicWeights, HaWeights, RenderWeights, ReverseWeights, UnetWeights};
+use crate::weights::{
+    self, BasicWeights, HaWeights, Linear, RenderWeights, ReverseWeights, UnetWeights,
+};
 
 /// Most rows of one render submission. Bounds the [rows, 594] activation buffers
 /// (~39 MB in f32) well inside the default 128 MiB storage binding; larger batches are tiled.
@@ -353,6 +355,34 @@ impl UnetBuilder<'_> {
     }
 }
 
+/// LeakyReLU with `slope` after a layer, or nothing.
+fn act(slope: Option<f32>) -> Act {
+    slope.map_or(Act::None, Act::Leaky)
+}
+
+/// Records one product per layer, each feeding the next: layer `i` writes `last` when it is
+/// the final layer and `hidden(i)` (ping-pong scratch) otherwise.
+fn chain<T: Copy>(
+    layers: &[Linear],
+    input: T,
+    hidden: impl Fn(usize) -> Result<T>,
+    last: T,
+    op: impl Fn(&Linear, T, T) -> Result<Dispatch>,
+) -> Result<Vec<Dispatch>> {
+    let mut x = input;
+    let mut out = Vec::with_capacity(layers.len());
+    for (i, l) in layers.iter().enumerate() {
+        let y = if i + 1 == layers.len() {
+            last
+        } else {
+            hidden(i)?
+        };
+        out.push(op(l, x, y)?);
+        x = y;
+    }
+    Ok(out)
+}
+
 fn v(buf: &DeviceBuffer, base: u64) -> Result<View<'_>> {
     View::new(&buf.buffer, base)
 }
@@ -384,6 +414,21 @@ impl GpuNetwork {
     /// The device context (pipelines, queue).
     pub fn context(&self) -> &GpuContext {
         &self.ctx
+    }
+
+    /// Switches the render MLP's matmul variant (for comparisons and tests; all compute the
+    /// same product). `Texture` needs the layer textures, uploaded by [`GpuNetwork::new`] only
+    /// when the context chose that variant.
+    pub fn set_matmul_variant(&mut self, variant: MatmulVariant) -> Result<()> {
+        let r = &self.render;
+        if variant == MatmulVariant::Texture && r.nd.iter().chain(&r.mlp).any(|l| l.tex.is_none()) {
+            return Err(GpuError::Unsupported(
+                "texture matmul: this network was built without layer textures".into(),
+            ));
+        }
+        self.ctx.set_matmul_variant(variant);
+        self.render_plans.clear();
+        Ok(())
     }
 
     /// Multiply-adds of one `estimate` on an `h x w` image (after padding to multiples of 8),
@@ -690,56 +735,33 @@ impl GpuNetwork {
         let out_w = r.mlp.last().map_or(0, |l| l.out);
         let out = ctx.storage("radiance log", u64::from(out_w) * u64::from(rows), p)?;
         let mut d = vec![ops::pos_enc_tex(ctx, &dirs.buffer, rows, r.octaves, &enc)?];
-        let act = |s: Option<f32>| s.map_or(Act::None, Act::Leaky);
         let missing = || GpuError::Unsupported("render layer without texture".into());
-        let mut x = &enc;
-        for (i, l) in r.nd.iter().enumerate() {
-            let (y, texel_base) = if i + 1 == r.nd.len() {
-                (&cat, r.param_channels / 4)
-            } else {
-                (&ping[i % 2], 0)
+        let op = |l: &Linear, x: TexOut<'_>, y: TexOut<'_>| {
+            let TexOut::Texture { tex: xt, .. } = x else {
+                return Err(GpuError::Unsupported("buffer input to matmul_tex".into()));
             };
             let w = l.tex.as_ref().ok_or_else(missing)?;
-            let target = TexOut::Texture { tex: y, texel_base };
-            d.push(ops::matmul_tex(
-                ctx,
-                x,
-                w,
-                target,
-                rows,
-                l.out,
-                l.inp,
-                act(l.slope),
-            )?);
-            x = y;
-        }
-        let mut x = &cat;
-        for (i, l) in r.mlp.iter().enumerate() {
-            let w = l.tex.as_ref().ok_or_else(missing)?;
-            let y = &ping[i % 2];
-            let target = if i + 1 == r.mlp.len() {
-                TexOut::Buffer {
-                    buf: &out.buffer,
-                    stride: l.out,
-                }
-            } else {
-                TexOut::Texture {
-                    tex: y,
-                    texel_base: 0,
-                }
-            };
-            d.push(ops::matmul_tex(
-                ctx,
-                x,
-                w,
-                target,
-                rows,
-                l.out,
-                l.inp,
-                act(l.slope),
-            )?);
-            x = y;
-        }
+            ops::matmul_tex(ctx, xt, w, y, rows, l.out, l.inp, act(l.slope))
+        };
+        let tex = |tex, texel_base| TexOut::Texture { tex, texel_base };
+        d.extend(chain(
+            &r.nd,
+            tex(&enc, 0),
+            |i| Ok(tex(&ping[i % 2], 0)),
+            tex(&cat, r.param_channels / 4),
+            op,
+        )?);
+        let to_out = TexOut::Buffer {
+            buf: &out.buffer,
+            stride: out_w,
+        };
+        d.extend(chain(
+            &r.mlp,
+            tex(&cat, 0),
+            |i| Ok(tex(&ping[i % 2], 0)),
+            to_out,
+            op,
+        )?);
         Ok(RenderPlan {
             dirs,
             cat: Cat::Texture(cat),
@@ -778,65 +800,56 @@ impl GpuNetwork {
             View::new(&enc.buffer, 0)?,
             r.encoding,
         )?];
-        let act = |s: Option<f32>| s.map_or(Act::None, Act::Leaky);
-        let mut x = Rows {
+        let op = |l: &Linear, x, y| {
+            ops::matmul(
+                ctx,
+                p,
+                x,
+                &l.weight.buffer,
+                y,
+                rows,
+                l.out,
+                l.inp,
+                act(l.slope),
+            )
+        };
+        // Hidden activations are packed at the layer's width (its consumer reads the same).
+        let hidden = |i: usize, width: u32| -> Result<Rows<'_>> {
+            Ok(Rows {
+                view: View::new(&ping[i % 2].buffer, 0)?,
+                stride: width,
+            })
+        };
+        let nd_last = Rows {
+            view: View::new(&cat.buffer, u64::from(r.param_channels))?,
+            stride: cat_w,
+        };
+        let enc_rows = Rows {
             view: View::new(&enc.buffer, 0)?,
             stride: r.encoding,
         };
-        for (i, l) in r.nd.iter().enumerate() {
-            let y = if i + 1 == r.nd.len() {
-                Rows {
-                    view: View::new(&cat.buffer, u64::from(r.param_channels))?,
-                    stride: cat_w,
-                }
-            } else {
-                Rows {
-                    view: View::new(&ping[i % 2].buffer, 0)?,
-                    stride: l.out,
-                }
-            };
-            d.push(ops::matmul(
-                ctx,
-                p,
-                x,
-                &l.weight.buffer,
-                y,
-                rows,
-                l.out,
-                l.inp,
-                act(l.slope),
-            )?);
-            x = y;
-        }
-        let mut x = Rows {
+        d.extend(chain(
+            &r.nd,
+            enc_rows,
+            |i| hidden(i, r.nd[i].out),
+            nd_last,
+            op,
+        )?);
+        let cat_rows = Rows {
             view: View::new(&cat.buffer, 0)?,
             stride: cat_w,
         };
-        for (i, l) in r.mlp.iter().enumerate() {
-            let y = if i + 1 == r.mlp.len() {
-                Rows {
-                    view: View::new(&out.buffer, 0)?,
-                    stride: l.out,
-                }
-            } else {
-                Rows {
-                    view: View::new(&ping[i % 2].buffer, 0)?,
-                    stride: l.out,
-                }
-            };
-            d.push(ops::matmul(
-                ctx,
-                p,
-                x,
-                &l.weight.buffer,
-                y,
-                rows,
-                l.out,
-                l.inp,
-                act(l.slope),
-            )?);
-            x = y;
-        }
+        let out_rows = Rows {
+            view: View::new(&out.buffer, 0)?,
+            stride: out_w,
+        };
+        d.extend(chain(
+            &r.mlp,
+            cat_rows,
+            |i| hidden(i, r.mlp[i].out),
+            out_rows,
+            op,
+        )?);
         Ok(RenderPlan {
             dirs,
             cat: Cat::Buffer(cat),

@@ -78,6 +78,17 @@ fn f(v: f32) -> u32 {
     v.to_bits()
 }
 
+/// Records `kernel` with `words` as its uniform (binding 0) and `bound` after it.
+fn launch(
+    ctx: &GpuContext,
+    kernel: PipelineKey,
+    words: &[u32],
+    bound: &[Res<'_>],
+    groups: [u32; 3],
+) -> Result<Dispatch> {
+    ctx.dispatch(&kernel, Some(words), bound, groups)
+}
+
 /// Conv2d with replicate padding: `dst = act(conv(src * norm_scale + norm_shift) + bias)`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn conv2d(
@@ -125,15 +136,16 @@ pub(crate) fn conv2d(
         constants: vec![("K", s.k)],
     };
     let groups = [groups_1d(wo, 8)?, groups_1d(ho, 8)?, groups_1d(s.cout, 4)?];
-    ctx.dispatch(
-        &key,
-        Some(&words),
+    launch(
+        ctx,
+        key,
+        &words,
         &[
-            src.buf,
-            weight,
-            bias.unwrap_or(ctx.dummy()),
-            norm.unwrap_or(ctx.dummy()),
-            dst.buf,
+            Res::Buf(src.buf),
+            Res::Buf(weight),
+            Res::Buf(bias.unwrap_or(ctx.dummy())),
+            Res::Buf(norm.unwrap_or(ctx.dummy())),
+            Res::Buf(dst.buf),
         ],
         groups,
     )
@@ -181,10 +193,16 @@ pub(crate) fn conv_transpose2d(
         constants: vec![("K", s.k), ("S", s.stride)],
     };
     let groups = [groups_1d(wo, 8)?, groups_1d(ho, 8)?, groups_1d(s.cout, 1)?];
-    ctx.dispatch(
-        &key,
-        Some(&words),
-        &[src.buf, weight, bias.unwrap_or(ctx.dummy()), dst.buf],
+    launch(
+        ctx,
+        key,
+        &words,
+        &[
+            Res::Buf(src.buf),
+            Res::Buf(weight),
+            Res::Buf(bias.unwrap_or(ctx.dummy())),
+            Res::Buf(dst.buf),
+        ],
         groups,
     )
 }
@@ -207,10 +225,11 @@ pub(crate) fn instance_norm_stats(
         constants: vec![],
     };
     // `dst` is unused by this entry point; the dummy fills its slot.
-    ctx.dispatch(
-        &key,
-        Some(&words),
-        &[src.buf, norm, ctx.dummy()],
+    launch(
+        ctx,
+        key,
+        &words,
+        &[Res::Buf(src.buf), Res::Buf(norm), Res::Buf(ctx.dummy())],
         [groups_1d(channels, 1)?, 1, 1],
     )
 }
@@ -233,16 +252,16 @@ pub(crate) fn instance_norm_apply(
     dst: View<'_>,
 ) -> Result<Dispatch> {
     let words = [channels, hw, src.base, dst.base, 0, 0, 0, 0];
-    let key = PipelineKey {
-        family: Family::InstanceNorm,
-        entry: "instance_norm_apply",
-        precision,
-        constants: vec![],
-    };
-    ctx.dispatch(
-        &key,
-        Some(&words),
-        &[src.buf, norm, dst.buf],
+    launch(
+        ctx,
+        PipelineKey {
+            family: Family::InstanceNorm,
+            entry: "instance_norm_apply",
+            precision,
+            constants: vec![],
+        },
+        &words,
+        &[Res::Buf(src.buf), Res::Buf(norm), Res::Buf(dst.buf)],
         linear_groups(u64::from(channels) * u64::from(hw), 256)?,
     )
 }
@@ -295,16 +314,23 @@ pub(crate) fn ha_gate(
         0,
         0,
     ];
-    let key = PipelineKey {
-        family: Family::HaGate,
-        entry: "ha_gate",
-        precision,
-        constants: vec![],
-    };
-    ctx.dispatch(
-        &key,
-        Some(&words),
-        &[a, b, c, affine, res.map_or(ctx.dummy(), |v| v.buf), dst.buf],
+    launch(
+        ctx,
+        PipelineKey {
+            family: Family::HaGate,
+            entry: "ha_gate",
+            precision,
+            constants: vec![],
+        },
+        &words,
+        &[
+            Res::Buf(a),
+            Res::Buf(b),
+            Res::Buf(c),
+            Res::Buf(affine),
+            Res::Buf(res.map_or(ctx.dummy(), |v| v.buf)),
+            Res::Buf(dst.buf),
+        ],
         linear_groups(u64::from(channels) * u64::from(hw), 256)?,
     )
 }
@@ -360,20 +386,20 @@ pub(crate) fn elementwise(
         0,
         0,
     ];
-    let key = PipelineKey {
-        family: Family::Elementwise,
-        entry,
-        precision,
-        constants: vec![],
-    };
-    ctx.dispatch(
-        &key,
-        Some(&words),
+    launch(
+        ctx,
+        PipelineKey {
+            family: Family::Elementwise,
+            entry,
+            precision,
+            constants: vec![],
+        },
+        &words,
         &[
-            src.buf,
-            src2.map_or(ctx.dummy(), |v| v.buf),
-            ab.unwrap_or(ctx.dummy()),
-            dst.buf,
+            Res::Buf(src.buf),
+            Res::Buf(src2.map_or(ctx.dummy(), |v| v.buf)),
+            Res::Buf(ab.unwrap_or(ctx.dummy())),
+            Res::Buf(dst.buf),
         ],
         linear_groups(u64::from(n), 256)?,
     )
@@ -391,15 +417,15 @@ pub(crate) fn pos_enc(
     out_stride: u32,
 ) -> Result<Dispatch> {
     let words = [n, out_stride, dst.base, 0];
-    let key = PipelineKey {
-        family: Family::PosEnc,
-        entry: "pos_enc",
-        precision,
-        constants: vec![("OCTAVES", octaves)],
-    };
-    ctx.dispatch_with(
-        &key,
-        Some(&words),
+    launch(
+        ctx,
+        PipelineKey {
+            family: Family::PosEnc,
+            entry: "pos_enc",
+            precision,
+            constants: vec![("OCTAVES", octaves)],
+        },
+        &words,
         &[
             Res::Buf(dirs),
             Res::Buf(dst.buf),
@@ -425,15 +451,15 @@ pub(crate) fn pos_enc_tex(
         });
     }
     let words = [n, dst.texels, 0, 0];
-    let key = PipelineKey {
-        family: Family::PosEnc,
-        entry: "pos_enc_tex",
-        precision: dst.precision,
-        constants: vec![("OCTAVES", octaves)],
-    };
-    ctx.dispatch_with(
-        &key,
-        Some(&words),
+    launch(
+        ctx,
+        PipelineKey {
+            family: Family::PosEnc,
+            entry: "pos_enc_tex",
+            precision: dst.precision,
+            constants: vec![("OCTAVES", octaves)],
+        },
+        &words,
         &[Res::Buf(dirs), Res::Buf(ctx.dummy()), Res::Tex(&dst.view)],
         linear_groups(u64::from(n) * u64::from(dst.texels), 64)?,
     )
@@ -495,15 +521,15 @@ pub(crate) fn matmul_tex(
         act_code,
         f(slope),
     ];
-    let key = PipelineKey {
-        family: Family::MatmulTex,
-        entry: "matmul_tex",
-        precision: w.precision,
-        constants: vec![],
-    };
-    ctx.dispatch_with(
-        &key,
-        Some(&words),
+    launch(
+        ctx,
+        PipelineKey {
+            family: Family::MatmulTex,
+            entry: "matmul_tex",
+            precision: w.precision,
+            constants: vec![],
+        },
+        &words,
         &[
             Res::Tex(&x.view),
             Res::Tex(&w.view),
@@ -583,16 +609,16 @@ pub(crate) fn matmul_as(
         // Buffer operands: the texture variant's buffer-only stand-in.
         MatmulVariant::Direct | MatmulVariant::Texture => ("matmul_direct", 4),
     };
-    let key = PipelineKey {
-        family: Family::Matmul,
-        entry,
-        precision,
-        constants: vec![],
-    };
-    ctx.dispatch(
-        &key,
-        Some(&words),
-        &[x.view.buf, w, y.view.buf],
+    launch(
+        ctx,
+        PipelineKey {
+            family: Family::Matmul,
+            entry,
+            precision,
+            constants: vec![],
+        },
+        &words,
+        &[Res::Buf(x.view.buf), Res::Buf(w), Res::Buf(y.view.buf)],
         [groups_1d(cols, 64)?, groups_1d(rows, row_tile)?, 1],
     )
 }

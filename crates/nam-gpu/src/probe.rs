@@ -2,7 +2,7 @@
 
 use std::time::Instant;
 
-use crate::context::{GpuContext, PipelineKey};
+use crate::context::{GpuContext, PipelineKey, Res};
 use crate::error::Result;
 use crate::shaders::{Family, Precision};
 
@@ -16,7 +16,7 @@ pub fn smoke(ctx: &GpuContext, data: &[f32]) -> Result<Vec<f32>> {
         constants: vec![],
     };
     let groups = crate::context::groups_1d(u32::try_from(data.len()).unwrap_or(u32::MAX), 64)?;
-    let d = ctx.dispatch(&key, None, &[&buf.buffer], [groups, 1, 1])?;
+    let d = ctx.dispatch(&key, None, &[Res::Buf(&buf.buffer)], [groups, 1, 1])?;
     ctx.run(&[d])?;
     ctx.read(&buf, data.len() as u64)
 }
@@ -35,7 +35,7 @@ pub fn fma_peak_gflops(ctx: &GpuContext, groups: u32, iters: u32, reps: u32) -> 
     let d = ctx.dispatch(
         &key,
         Some(&[iters, 1.0f32.to_bits(), 0, 0]),
-        &[&out.buffer],
+        &[Res::Buf(&out.buffer)],
         [groups, 1, 1],
     )?;
     let flops = f64::from(groups) * 256.0 * f64::from(iters) * 64.0;
@@ -57,6 +57,7 @@ pub fn matmul_gflops(ctx: &GpuContext, rows: u32, cols: u32, inner: u32, reps: u
     let w: Vec<f32> = (0..cols as usize * inner as usize)
         .map(|i| (i % 5) as f32 * 0.1)
         .collect();
+    let flops = 2.0 * f64::from(rows) * f64::from(cols) * f64::from(inner);
     if ctx.matmul_variant() == crate::MatmulVariant::Texture {
         let xt = ctx.upload_matrix("matmul x", &x, rows, inner, p)?;
         let wt = ctx.upload_matrix("matmul w", &w, cols, inner, p)?;
@@ -76,7 +77,7 @@ pub fn matmul_gflops(ctx: &GpuContext, rows: u32, cols: u32, inner: u32, reps: u
         )?;
         let best = time_best(ctx, &d, reps)?;
         let _ = ctx.read_texture(&yt, 1)?;
-        return Ok(2.0 * f64::from(rows) * f64::from(cols) * f64::from(inner) / best / 1e9);
+        return Ok(flops / best / 1e9);
     }
     let xb = ctx.upload("matmul x", &x, p)?;
     let wb = ctx.upload("matmul w", &w, p)?;
@@ -100,7 +101,7 @@ pub fn matmul_gflops(ctx: &GpuContext, rows: u32, cols: u32, inner: u32, reps: u
     )?;
     let best = time_best(ctx, &d, reps)?;
     let _ = ctx.read(&yb, 1)?;
-    Ok(2.0 * f64::from(rows) * f64::from(cols) * f64::from(inner) / best / 1e9)
+    Ok(flops / best / 1e9)
 }
 
 /// Best wall time in seconds of `reps` submissions of `d` (each waited for), after one warm-up.

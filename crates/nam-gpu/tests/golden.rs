@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use std::sync::{Mutex, OnceLock};
 
-use nam_gpu::{DeviceHandles, GpuNetwork, Precision};
+use nam_gpu::{DeviceHandles, GpuNetwork, MatmulVariant, Precision};
 use nam_weights::{TensorFile, Weights};
 
 /// f32 GPU vs torch f32: different summation orders through ~40 layers of the U-Net
@@ -115,17 +115,23 @@ fn render_case(p: Precision, tol: f32) {
     };
     let (params, _) = tensor(&golden, "r_params");
     let (dirs, _) = tensor(&golden, "r_dirs");
-    let (log, nd) = net
-        .render_log_with_nd(params, dirs)
-        .unwrap_or_else(|e| panic!("{e}"));
-    let radiance = net.render(params, dirs).unwrap_or_else(|e| panic!("{e}"));
-    for (name, got) in [("r_nd", &nd), ("r_log", &log), ("r_radiance", &radiance)] {
-        let err = rel_err(got, tensor(&golden, name).0);
-        eprintln!("render {p:?} {name}: relative error {err:.3e} (tol {tol:.1e})");
-        assert!(
-            err <= tol,
-            "render {p:?} {name}: relative error {err} > {tol}"
-        );
+    // The adapter's own choice first, then the buffer variants (texture and buffer render
+    // plans differ, so each is checked against torch).
+    let chosen = net.context().matmul_variant();
+    for v in [chosen, MatmulVariant::Direct, MatmulVariant::Tiled] {
+        net.set_matmul_variant(v).unwrap_or_else(|e| panic!("{e}"));
+        let (log, nd) = net
+            .render_log_with_nd(params, dirs)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let radiance = net.render(params, dirs).unwrap_or_else(|e| panic!("{e}"));
+        for (name, got) in [("r_nd", &nd), ("r_log", &log), ("r_radiance", &radiance)] {
+            let err = rel_err(got, tensor(&golden, name).0);
+            eprintln!("render {p:?} {v:?} {name}: relative error {err:.3e} (tol {tol:.1e})");
+            assert!(
+                err <= tol,
+                "render {p:?} {v:?} {name}: relative error {err} > {tol}"
+            );
+        }
     }
 }
 
