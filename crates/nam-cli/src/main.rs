@@ -34,6 +34,8 @@ enum Command {
     Info(cmd::info::Args),
     /// Error against run time on the held-out set: Markdown table and PNG plot.
     Report(cmd::report::Args),
+    /// Time the CPU paths (estimate, relights, ROI, queries) against each other: Markdown table.
+    Bench(cmd::bench::Args),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +46,7 @@ fn main() -> ExitCode {
         Command::Estimate(args) => cmd::estimate::run(&args),
         Command::Info(args) => cmd::info::run(&args),
         Command::Report(args) => cmd::report::run(&args),
+        Command::Bench(args) => cmd::bench::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,5 +1,6 @@
 //! One module per subcommand: each has an `Args` (clap derive) and a `run(&Args)`.
 
+pub mod bench;
 pub mod estimate;
 pub mod info;
 pub mod relight;

@@ -1,0 +1,322 @@
+//! `nam-cli bench`: the CPU paths of DESIGN §9 timed in one run against the
+//! general per-pixel relight and this machine's sgemm rate.
+
+use anyhow::{Result, bail};
+use nam::NeuralModel;
+use nam_model::geometry::{CAPTURE_DISTANCE, direction};
+use nam_model::{RenderNet, Roi, Source};
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Time the CPU paths (estimate, general relight, directional + orthographic,
+/// prepared material, ROI, query batch) against each other and the sgemm
+/// roofline, and print a Markdown table.
+///
+/// Example: `nam-cli bench --size 256 --repeat 3`
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Image side in pixels (param map and photo are size × size).
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u16).range(8..=2048))]
+    pub size: u16,
+    /// Timed runs per row after one warm-up run; the best is reported.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..))]
+    pub repeat: u16,
+    /// Model file (default: the embedded model).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+}
+
+/// Side of the sgemm roofline product (n × n × n).
+const SGEMM_N: usize = 1024;
+/// Side of the region-of-interest row (clamped to the image).
+const ROI_SIDE: usize = 64;
+/// Queries in the query-batch row.
+const QUERIES: usize = 4096;
+
+/// One measured row of the table.
+struct Row {
+    name: String,
+    /// Pixels or queries computed (0: not a per-pixel path).
+    items: usize,
+    ms: f64,
+    /// Floating-point operations of one run (0: not counted).
+    flops: f64,
+}
+
+/// A path to time: its row label, items per run, flops per run and the work.
+type Case<'a> = (String, usize, f64, Box<dyn FnMut() -> Result<()> + 'a>);
+
+/// Times every case round-robin: one warm-up round, then `repeat` rounds of
+/// one run per case; the best run of each is kept. Interleaving makes the
+/// ratios fair on a shared machine, where load changes between seconds.
+fn measure(cases: Vec<Case<'_>>, repeat: usize) -> Result<Vec<Row>> {
+    let mut best = vec![f64::INFINITY; cases.len()];
+    let mut cases = cases;
+    for round in 0..=repeat {
+        for (b, (_, _, _, f)) in best.iter_mut().zip(cases.iter_mut()) {
+            let t = Instant::now();
+            f()?;
+            if round > 0 {
+                *b = b.min(t.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+    }
+    Ok(cases
+        .into_iter()
+        .zip(best)
+        .map(|((name, items, flops, _), ms)| Row {
+            name,
+            items,
+            ms,
+            flops,
+        })
+        .collect())
+}
+
+/// Multiply-adds of `M_est` at `side`² counted from the conv weight shapes
+/// (docs/FORMAT.md names): conv `[out, in, k, k]` costs `out·in·k²` per output
+/// pixel, transposed conv `[in, out, k, k]` the same per input pixel. Stage
+/// resolutions follow DESIGN §4 (encoder strides 1, 2, 2, 2; decoder ×2 up).
+fn unet_macs(model: &NeuralModel, side: usize) -> f64 {
+    let s = side.div_ceil(8) * 8;
+    let mut total = 0.0;
+    for (name, t) in model.weights().tensors() {
+        let sh = t.shape();
+        let Some(path) = name.strip_prefix("est.") else {
+            continue;
+        };
+        if sh.len() != 4 {
+            continue;
+        }
+        let per_pixel = (sh[0] * sh[1] * sh[2] * sh[3]) as f64;
+        let parts: Vec<&str> = path.split('.').collect();
+        let stage =
+            |p: &str, prefix: &str| p.strip_prefix(prefix).and_then(|k| k.parse::<u32>().ok());
+        // Resolution (side) the weight is applied at.
+        let res = match parts.as_slice() {
+            ["stem", ..] | ["head", ..] => s,
+            [enc, block, rest @ ..] if stage(enc, "enc").is_some() => {
+                let k = stage(enc, "enc").unwrap_or(1);
+                let r = s >> (k - 1);
+                // inc1a of a strided first block runs at the input resolution.
+                if *block == "0" && k > 1 && rest.get(1) == Some(&"inc1a") {
+                    2 * r
+                } else {
+                    r
+                }
+            }
+            [dec, block, rest @ ..] if stage(dec, "dec").is_some() => {
+                let k = stage(dec, "dec").unwrap_or(4);
+                let out = if k >= 3 { s } else { s >> (3 - k) };
+                let up = matches!(rest.first(), Some(&"up4") | Some(&"up2"));
+                if *block == "0" && k < 4 && up {
+                    out / 2
+                } else {
+                    out
+                }
+            }
+            _ => s,
+        };
+        total += per_pixel * (res * res) as f64;
+    }
+    total
+}
+
+/// Runs the subcommand.
+pub fn run(args: &Args) -> Result<()> {
+    let model = match &args.model {
+        Some(p) => NeuralModel::from_file(p)?,
+        None => NeuralModel::embedded()?,
+    };
+    let (s, rep) = (usize::from(args.size), usize::from(args.repeat));
+    let n = s * s;
+    let cpu = model.cpu();
+    let net = &cpu.render;
+    let unfolded = RenderNet::new_unfolded(model.weights())?;
+
+    // A smooth synthetic photo in the network's input layout, its param map
+    // and prepared material.
+    let input: Vec<f32> = (0..4 * n)
+        .map(|i| {
+            let (c, p) = (i / n, i % n);
+            let (y, x) = ((p / s) as f32 / s as f32, (p % s) as f32 / s as f32);
+            0.3 + 0.2 * ((7.0 * x + 3.0 * y + c as f32).sin())
+        })
+        .collect();
+    let map = cpu.unet.estimate(&input, s, s)?;
+    let prep = net.prepare(&map)?;
+
+    let sn = SGEMM_N;
+    let a: Vec<f32> = (0..sn * sn).map(|i| (i % 7) as f32 * 0.1).collect();
+    let b: Vec<f32> = (0..sn * sn).map(|i| (i % 5) as f32 * 0.1).collect();
+    let mut c = vec![0.0f32; sn * sn];
+
+    let light = [1.5, 1.0, 3.5];
+    let view = [0.0, 0.0, CAPTURE_DISTANCE];
+    let wi = direction([0.0; 3], light);
+    let wo = [0.0, 0.0, 1.0];
+    let full = Roi::full(s, s);
+    let (pl, pv) = (Source::Point(light), Source::Point(view));
+    let (dl, dv) = (Source::Distant(wi), Source::Distant(wo));
+    let side = ROI_SIDE.min(s);
+    let roi = Roi {
+        row: (s - side) / 2,
+        col: (s - side) / 2,
+        height: side,
+        width: side,
+    };
+    let texels: Vec<usize> = (0..QUERIES).map(|q| (q * 7919) % n).collect();
+    let qwi: Vec<[f32; 3]> = (0..QUERIES)
+        .map(|q| direction([0.0; 3], [(q % 61) as f32 / 30.0 - 1.0, 0.4, 1.0]))
+        .collect();
+    let qwo: Vec<[f32; 3]> = (0..QUERIES)
+        .map(|q| direction([0.0; 3], [0.2, (q % 53) as f32 / 26.0 - 1.0, 1.0]))
+        .collect();
+    let mut out = vec![0.0f32; QUERIES * 3];
+
+    // 2 flops per multiply-add, per run.
+    let fl = |macs_per_item: usize, items: usize| 2.0 * macs_per_item as f64 * items as f64;
+    let m = |prepared, constant| net.macs_per_output(prepared, constant);
+    let cases: Vec<Case<'_>> = vec![
+        (
+            format!("sgemm {sn}³ (roofline)"),
+            0,
+            2.0 * (sn as f64).powi(3),
+            Box::new(|| Ok(nam_model::matmul(sn, sn, sn, &a, &b, &mut c)?)),
+        ),
+        (
+            format!("estimate {s}² (M_est)"),
+            0,
+            2.0 * unet_macs(&model, s),
+            Box::new(|| {
+                cpu.unet.estimate(&input, s, s)?;
+                Ok(())
+            }),
+        ),
+        (
+            format!("general point relight {s}²"),
+            n,
+            fl(m(false, false), n),
+            Box::new(|| {
+                net.relight(&map, light, view)?;
+                Ok(())
+            }),
+        ),
+        (
+            format!("general point relight {s}², l0·l1 unfolded"),
+            n,
+            fl(unfolded.macs_per_output(false, false), n),
+            Box::new(|| {
+                unfolded.relight(&map, light, view)?;
+                Ok(())
+            }),
+        ),
+        (
+            format!("directional + orthographic {s}²"),
+            n,
+            fl(m(false, true), n),
+            Box::new(|| {
+                net.relight_directional(&map, wi, wo)?;
+                Ok(())
+            }),
+        ),
+        (
+            format!("prepare material {s}² (W_p·p once)"),
+            n,
+            fl(net.param_channels() * net.hidden_len(), n),
+            Box::new(|| {
+                net.prepare(&map)?;
+                Ok(())
+            }),
+        ),
+        (
+            format!("prepared point relight {s}²"),
+            n,
+            fl(m(true, false), n),
+            Box::new(|| {
+                net.relight_prepared(&prep, pl, pv, full)?;
+                Ok(())
+            }),
+        ),
+        (
+            format!("prepared directional + orthographic {s}²"),
+            n,
+            fl(m(true, true), n),
+            Box::new(|| {
+                net.relight_prepared(&prep, dl, dv, full)?;
+                Ok(())
+            }),
+        ),
+        (
+            format!("prepared point relight, ROI {side}²"),
+            side * side,
+            fl(m(true, false), side * side),
+            Box::new(|| {
+                net.relight_prepared(&prep, pl, pv, roi)?;
+                Ok(())
+            }),
+        ),
+        (
+            format!("prepared query batch ({QUERIES} texel, ωi, ωo)"),
+            QUERIES,
+            fl(m(true, false), QUERIES),
+            Box::new(|| {
+                net.render_log_prepared(&prep, &texels, &qwi, &qwo, &mut out)?;
+                Ok(())
+            }),
+        ),
+    ];
+    let rows = measure(cases, rep)?;
+    if !out.iter().all(|v| v.is_finite()) {
+        bail!("query batch gave non-finite output");
+    }
+    let sg_gflops = rows[0].flops / rows[0].ms / 1e6;
+    print!("{}", table(&rows, sg_gflops, threads(), s, rep));
+    Ok(())
+}
+
+/// Worker threads of rayon's global pool (what the networks run on).
+fn threads() -> usize {
+    std::env::var("RAYON_NUM_THREADS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .filter(|&t: &usize| t > 0)
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from))
+}
+
+/// The Markdown report. Row 2 (index 2) is the general point relight that
+/// speedups are relative to, per pixel/query.
+fn table(rows: &[Row], sg_gflops: f64, threads: usize, s: usize, rep: usize) -> String {
+    let mut t = String::new();
+    let _ = writeln!(
+        t,
+        "CPU, {threads} threads, size {s}², best of {rep} interleaved rounds after a warm-up round; sgemm roofline {sg_gflops:.1} GFLOP/s\n"
+    );
+    let _ = writeln!(
+        t,
+        "| path | pixels/queries | ms | GFLOP/s | × general (per item) | % of sgemm roofline |"
+    );
+    let _ = writeln!(t, "|---|---:|---:|---:|---:|---:|");
+    let general = rows.get(2).map(|g| g.ms / g.items.max(1) as f64);
+    for r in rows {
+        let gf = r.flops / r.ms / 1e6;
+        let items = if r.items == 0 {
+            "—".to_string()
+        } else {
+            r.items.to_string()
+        };
+        let speedup = match (general, r.items) {
+            (Some(g), i) if i > 0 => format!("{:.2}", g / (r.ms / i as f64)),
+            _ => "—".to_string(),
+        };
+        let _ = writeln!(
+            t,
+            "| {} | {items} | {:.2} | {gf:.1} | {speedup} | {:.0}% |",
+            r.name,
+            r.ms,
+            100.0 * gf / sg_gflops
+        );
+    }
+    t
+}

@@ -1,0 +1,95 @@
+//! End-to-end test of `nam-cli bench`: the real binary prints a well-formed
+//! Markdown table with one measured row per path, and rejects bad options.
+
+use std::process::{Command, Output};
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nam-cli"))
+        .args(args)
+        .env("RAYON_NUM_THREADS", "2")
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run nam-cli: {e}"))
+}
+
+/// Rows the table must have, in order (prefixes of the first column).
+const ROWS: [&str; 10] = [
+    "sgemm 1024³",
+    "estimate 32²",
+    "general point relight 32²",
+    "general point relight 32², l0·l1 unfolded",
+    "directional + orthographic 32²",
+    "prepare material 32²",
+    "prepared point relight 32²",
+    "prepared directional + orthographic 32²",
+    "prepared point relight, ROI 32²",
+    "prepared query batch",
+];
+
+#[test]
+fn bench_prints_one_measured_row_per_path() {
+    let o = run(&["bench", "--size", "32", "--repeat", "1"]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(stdout.contains("2 threads"), "{stdout}");
+    let rows: Vec<Vec<&str>> = stdout
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| path"))
+        .map(|l| l.trim_matches('|').split('|').map(str::trim).collect())
+        .collect();
+    assert_eq!(rows.len(), ROWS.len(), "{stdout}");
+    for (row, want) in rows.iter().zip(ROWS) {
+        assert_eq!(row.len(), 6, "{row:?}");
+        assert!(row[0].starts_with(want), "{} vs {want}", row[0]);
+        let ms: f64 = row[2].parse().unwrap_or_else(|_| panic!("ms of {row:?}"));
+        let gflops: f64 = row[3]
+            .parse()
+            .unwrap_or_else(|_| panic!("GFLOP/s of {row:?}"));
+        assert!(ms > 0.0 && ms.is_finite(), "{row:?}");
+        assert!(gflops > 0.0 && gflops.is_finite(), "{row:?}");
+        assert!(row[5].ends_with('%'), "{row:?}");
+    }
+    // Speedups are per item against the general point relight (row 2).
+    assert_eq!(rows[2][4], "1.00");
+    assert_eq!(rows[0][4], "—");
+    for row in &rows[3..] {
+        let x: f64 = row[4]
+            .parse()
+            .unwrap_or_else(|_| panic!("speedup of {row:?}"));
+        assert!(x > 0.0 && x.is_finite(), "{row:?}");
+    }
+    // Item counts: 32² pixels, the whole image as ROI (64 clamped to 32), 4096 queries.
+    assert_eq!(rows[2][1], "1024");
+    assert_eq!(rows[8][1], "1024");
+    assert_eq!(rows[9][1], "4096");
+}
+
+#[test]
+fn bench_rejects_bad_options_and_missing_models() {
+    for args in [
+        &["bench", "--size", "0"][..],
+        &["bench", "--size", "4"][..],
+        &["bench", "--repeat", "0"][..],
+        &["bench", "--size", "x"][..],
+    ] {
+        let o = run(args);
+        assert!(!o.status.success(), "{args:?} must fail");
+        assert!(!o.stderr.is_empty(), "{args:?} must say why");
+    }
+    let o = run(&[
+        "bench",
+        "--size",
+        "8",
+        "--model",
+        "/nonexistent/model.safetensors",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("nonexistent"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
