@@ -176,12 +176,42 @@ impl RenderNet {
         roi: Roi,
     ) -> Result<Rgb> {
         self.check_prepared(prep)?;
+        let base = Base::Prepared(&prep.rows);
+        self.relight_region(base, prep.height, prep.width, light, view, roi)
+    }
+
+    /// Relights the pixels of `roi` of a param map for a light and a viewer,
+    /// like [`Self::relight_prepared`] but streaming: `W_p·p` is computed per
+    /// tile, so no `texels × hidden` buffer is allocated (the choice for a
+    /// single relight; prepare once for many). Both sources distant: encoding
+    /// and ND_enc run once for the region.
+    pub fn relight_sources(
+        &self,
+        map: &ParamMap,
+        light: Source,
+        view: Source,
+        roi: Roi,
+    ) -> Result<Rgb> {
+        self.check_map(map)?;
+        let base = Base::Params(&map.data);
+        self.relight_region(base, map.height, map.width, light, view, roi)
+    }
+
+    /// The region relight behind [`Self::relight_prepared`] and
+    /// [`Self::relight_sources`] for an `h × w` material.
+    fn relight_region(
+        &self,
+        base: Base<'_>,
+        h: usize,
+        w: usize,
+        light: Source,
+        view: Source,
+        roi: Roi,
+    ) -> Result<Rgb> {
         light.check("light")?;
         view.check("view")?;
-        roi.check(prep.height, prep.width)?;
-        let (h, w) = (prep.height, prep.width);
+        roi.check(h, w)?;
         let texel = |g: usize| (roi.row + g / roi.width) * w + roi.col + g % roi.width;
-        let base = Base::Prepared(&prep.rows);
         let mut data = vec![0.0f32; roi.height * roi.width * 3];
         if matches!((light, view), (Source::Distant(_), Source::Distant(_))) {
             let c = self.constant_direction_part(light.from([0.0; 3]), view.from([0.0; 3]));

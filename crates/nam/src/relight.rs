@@ -1,10 +1,11 @@
 //! Relighting a whole material for one light and viewer (DESIGN.md §3 geometry).
 
-use crate::error::Result;
+use crate::error::{NamError, Result};
 use crate::material::NeuralMaterial;
-use crate::model::{BackendKind, NeuralModel};
+use crate::model::NeuralModel;
 use nam_ggx::geometry::{Light, View, directions_at, pixel_position};
-use nam_ggx::{RenderSettings, RgbImage};
+use nam_ggx::{RenderSettings, RgbImage, Vec3d};
+use nam_model::{Roi, Source};
 
 /// Light, viewer, intensity and falloff of a relight: the same type the GGX reference uses,
 /// so a neural render and its ground truth are always set up identically.
@@ -27,28 +28,49 @@ fn above_surface(scene: &Scene) -> bool {
 ///
 /// A light or viewer on or below the surface plane gives a black image (the network knows
 /// no horizon; the GGX reference is exactly 0 there, DESIGN §7).
+///
+/// On the CPU the cheapest exact pipeline is picked (DESIGN §9): with a directional light
+/// *and* an orthographic view the positional encoding and ND_enc run once for the whole
+/// image (≥ 5× faster); memory beyond the output stays bounded by the tile scratch.
 pub fn relight(
     model: &NeuralModel,
     material: &NeuralMaterial,
     scene: &Scene,
 ) -> Result<RgbImage<f32>> {
+    let (h, w) = material.size();
+    relight_roi(model, material, scene, Roi::full(h, w))
+}
+
+/// Like [`relight`], but evaluates only the pixels of `roi` (a `roi.height × roi.width`
+/// image, row-major); pixels outside it cost nothing. The values equal the same pixels of
+/// [`relight`].
+pub fn relight_roi(
+    model: &NeuralModel,
+    material: &NeuralMaterial,
+    scene: &Scene,
+    roi: Roi,
+) -> Result<RgbImage<f32>> {
     scene.validate()?;
     material.check_model(model)?;
     let (h, w) = material.size();
-    let mut img = RgbImage::zeros(w, h)?;
+    if roi.height == 0 || roi.width == 0 || roi.row + roi.height > h || roi.col + roi.width > w {
+        return Err(NamError::Query(format!(
+            "region {}×{} at ({}, {}) is empty or outside the {h}×{w} material",
+            roi.height, roi.width, roi.row, roi.col
+        )));
+    }
+    let mut img = RgbImage::zeros(roi.width, roi.height)?;
     if !above_surface(scene) {
         return Ok(img);
     }
-    let radiance = match (model.backend(), scene.light, scene.view) {
-        (BackendKind::Cpu, Light::Point(l), View::Point(v)) => {
-            let to32 = |p: nam_ggx::Vec3d| [p.x as f32, p.y as f32, p.z as f32];
-            model
-                .cpu()
-                .render
-                .relight(material.params(), to32(l), to32(v))?
+    let radiance = match render_gpu(model, material, scene, roi) {
+        Some(gpu) => gpu?,
+        None => {
+            let net = &model.cpu().render;
+            let (light, view) = (light_source(scene), view_source(scene));
+            net.relight_sources(material.params(), light, view, roi)?
                 .data
         }
-        _ => render_with_directions(model, material, scene)?,
     };
     for (k, (dst, src)) in img
         .data_mut()
@@ -56,7 +78,8 @@ pub fn relight(
         .zip(radiance.chunks_exact(3))
         .enumerate()
     {
-        let scale = scene.scale_at(pixel_position(k / w, k % w, h, w)) as f32;
+        let (i, j) = (roi.row + k / roi.width, roi.col + k % roi.width);
+        let scale = scene.scale_at(pixel_position(i, j, h, w)) as f32;
         for c in 0..3 {
             dst[c] = src[c] * scale;
         }
@@ -64,13 +87,32 @@ pub fn relight(
     Ok(img)
 }
 
-/// Per-pixel `[ωi, ωo, ωh]` (f32, `H·W×9`) for a scene; pixels whose centre coincides with the
-/// light or viewer get the co-located straight-up triple (their radiance is then scaled by 0
-/// falloff or is a measure-zero point).
-pub(crate) fn direction_triples(scene: &Scene, h: usize, w: usize) -> Vec<f32> {
-    let mut dirs = Vec::with_capacity(h * w * 9);
-    for i in 0..h {
-        for j in 0..w {
+fn to32(p: Vec3d) -> [f32; 3] {
+    [p.x as f32, p.y as f32, p.z as f32]
+}
+
+fn light_source(scene: &Scene) -> Source {
+    match scene.light {
+        Light::Point(p) => Source::Point(to32(p)),
+        Light::Directional(d) => Source::Distant(to32(d)),
+    }
+}
+
+fn view_source(scene: &Scene) -> Source {
+    match scene.view {
+        View::Point(p) => Source::Point(to32(p)),
+        View::Orthographic(d) => Source::Distant(to32(d)),
+    }
+}
+
+#[cfg(feature = "gpu")]
+/// Per-pixel `[ωi, ωo, ωh]` (f32, 9 per pixel of `roi`) for a scene; pixels whose centre
+/// coincides with the light or viewer get the co-located straight-up triple (their radiance
+/// is then scaled by 0 falloff or is a measure-zero point).
+fn direction_triples(scene: &Scene, h: usize, w: usize, roi: Roi) -> Vec<f32> {
+    let mut dirs = Vec::with_capacity(roi.height * roi.width * 9);
+    for i in roi.row..roi.row + roi.height {
+        for j in roi.col..roi.col + roi.width {
             let t = directions_at(&scene.light, &scene.view, pixel_position(i, j, h, w))
                 .map(|d| d.cast::<f32>().to_array9())
                 .unwrap_or([0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0]);
@@ -80,20 +122,30 @@ pub(crate) fn direction_triples(scene: &Scene, h: usize, w: usize) -> Vec<f32> {
     dirs
 }
 
-fn render_with_directions(
+/// The GPU path, when a GPU is attached: per-pixel directions and the ROI's params
+/// uploaded, the batched MLP run.
+#[cfg(feature = "gpu")]
+fn render_gpu(
     model: &NeuralModel,
     material: &NeuralMaterial,
     scene: &Scene,
-) -> Result<Vec<f32>> {
+    roi: Roi,
+) -> Option<Result<Vec<f32>>> {
     let (h, w) = material.size();
-    let dirs = direction_triples(scene, h, w);
-    let params = &material.params().data;
-    #[cfg(feature = "gpu")]
-    if let Some(res) = model.with_gpu(|net| Ok(net.render(params, &dirs)?)) {
-        return res;
-    }
-    let net = &model.cpu().render;
-    let mut log = vec![0.0f32; h * w * 3];
-    net.render_log_triples(params, &dirs, &mut log)?;
-    Ok(log.into_iter().map(nam_model::radiance_from_log).collect())
+    let p = material.params();
+    let c = p.channels;
+    let params: Vec<f32> = (roi.row..roi.row + roi.height)
+        .flat_map(|i| {
+            let start = (i * w + roi.col) * c;
+            p.data[start..start + roi.width * c].iter().copied()
+        })
+        .collect();
+    let dirs = direction_triples(scene, h, w, roi);
+    model.with_gpu(|net| Ok(net.render(&params, &dirs)?))
+}
+
+/// Without the `gpu` feature there is only the CPU.
+#[cfg(not(feature = "gpu"))]
+fn render_gpu(_: &NeuralModel, _: &NeuralMaterial, _: &Scene, _: Roi) -> Option<Result<Vec<f32>>> {
+    None
 }

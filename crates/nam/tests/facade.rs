@@ -3,8 +3,8 @@
 use glam::{Vec2, Vec3};
 use nam::geometry::{Light, View};
 use nam::{
-    BrdfQuery, LogMode, NeuralBrdf, NeuralMaterial, NeuralModel, Photo, Scene, ShadingFrame, Vec3d,
-    relight,
+    BrdfQuery, LogMode, NeuralBrdf, NeuralMaterial, NeuralModel, Photo, Roi, Scene, ShadingFrame,
+    Vec3d, relight, relight_roi,
 };
 use nam_weights::TensorFile;
 use std::path::PathBuf;
@@ -227,4 +227,97 @@ fn embedded_model_estimates_and_relights_the_bundled_photo_to_finite_values() {
     );
     let img = relight(&model, &m, &scene).expect("relight");
     assert!(img.data().iter().all(|v| v.is_finite() && *v >= 0.0));
+}
+
+/// The same network on the same directions, summed in another order (f32).
+const SAME_PATH_TOL: f32 = 1e-4;
+
+#[test]
+fn roi_relight_equals_the_same_pixels_of_the_full_relight_and_rejects_bad_regions() {
+    let model = tiny();
+    let m = grey_material(&model, 11);
+    let scene = Scene::new(
+        Light::Point(point(0.7, 0.4, 2.5)),
+        View::Point(point(0.0, -0.5, 4.0)),
+    );
+    let full = relight(&model, &m, &scene).expect("relight");
+    let roi = Roi {
+        row: 3,
+        col: 2,
+        height: 5,
+        width: 7,
+    };
+    let part = relight_roi(&model, &m, &scene, roi).expect("roi");
+    assert_eq!((part.height(), part.width()), (5, 7));
+    for i in 0..5 {
+        for j in 0..7 {
+            let (a, b) = (part.pixel(i, j), full.pixel(3 + i, 2 + j));
+            for c in 0..3 {
+                assert!((a[c] - b[c]).abs() <= SAME_PATH_TOL * (1.0 + b[c].abs()));
+            }
+        }
+    }
+    for bad in [
+        Roi {
+            row: 0,
+            col: 0,
+            height: 0,
+            width: 3,
+        },
+        Roi {
+            row: 9,
+            col: 0,
+            height: 3,
+            width: 3,
+        },
+        Roi {
+            row: 0,
+            col: 5,
+            height: 1,
+            width: 7,
+        },
+    ] {
+        assert!(
+            relight_roi(&model, &m, &scene, bad).is_err(),
+            "{bad:?} accepted"
+        );
+    }
+}
+
+#[test]
+fn directional_orthographic_relight_equals_per_query_evaluation() {
+    // The specialised path (ND_enc once) against the general per-query BRDF evaluation; the
+    // directions are re-normalised in f32 on one side, hence PATH_TOL.
+    let model = tiny();
+    let m = grey_material(&model, 9);
+    let (wi, wo) = (
+        Vec3::new(0.4, -0.3, 0.87).normalize(),
+        Vec3::new(-0.2, 0.1, 0.97).normalize(),
+    );
+    let scene = Scene::new(
+        Light::Directional(Vec3d::from_array(wi.as_dvec3().to_array())),
+        View::Orthographic(Vec3d::from_array(wo.as_dvec3().to_array())),
+    );
+    let img = relight(&model, &m, &scene).expect("relight");
+    let brdf = NeuralBrdf::new(&model, &m).expect("bind");
+    let (h, w) = m.size();
+    let queries: Vec<BrdfQuery> = (0..h * w)
+        .map(|k| BrdfQuery {
+            uv: Vec2::new(
+                ((k % w) as f32 + 0.5) / w as f32,
+                ((k / w) as f32 + 0.5) / h as f32,
+            ),
+            wi,
+            wo,
+        })
+        .collect();
+    let f = brdf.eval(&queries).expect("eval");
+    for (k, fk) in f.iter().enumerate() {
+        let r = Vec3::from_slice(&img.data()[k * 3..k * 3 + 3]);
+        let want = *fk * std::f32::consts::PI;
+        assert!(
+            (r - want).abs().max_element() <= PATH_TOL * (1.0 + want.abs().max_element()),
+            "pixel {k}: {r} vs {want}"
+        );
+    }
 }
