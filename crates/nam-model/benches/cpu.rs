@@ -108,6 +108,9 @@ fn specialisations(c: &mut Criterion) {
     g.bench_function("directional_ortho_256", |b| {
         b.iter(|| net.relight_directional(black_box(&map), wi, [0.0, 0.0, 1.0]))
     });
+    g.bench_function("directional_ortho_256_unfolded", |b| {
+        b.iter(|| unfolded.relight_directional(black_box(&map), wi, [0.0, 0.0, 1.0]))
+    });
     g.bench_function("prepare_256", |b| b.iter(|| net.prepare(black_box(&map))));
     g.bench_function("prepared_point_256", |b| {
         b.iter(|| net.relight_prepared(black_box(&prep), l, v, full))

@@ -222,6 +222,15 @@ pub fn run(args: &Args) -> Result<()> {
             }),
         ),
         (
+            format!("directional + orthographic {s}², l0·l1 unfolded"),
+            n,
+            fl(unfolded.macs_per_output(false, true), n),
+            Box::new(|| {
+                unfolded.relight_directional(&map, wi, wo)?;
+                Ok(())
+            }),
+        ),
+        (
             format!("prepare material {s}² (W_p·p once)"),
             n,
             fl(net.param_channels() * net.hidden_len(), n),
