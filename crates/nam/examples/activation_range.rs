@@ -22,12 +22,34 @@ fn unit(v: [f32; 3]) -> [f32; 3] {
     [v[0] / n, v[1] / n, v[2] / n]
 }
 
-fn trace(model: &NeuralModel, photo: &Photo) -> ActivationRanges {
+/// `max |a − b| / max |b|`.
+fn normwise(a: &[f32], b: &[f32]) -> f64 {
+    let scale = b.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| f64::from((x - y).abs()) / f64::from(scale))
+        .fold(0.0, f64::max)
+}
+
+/// Activation ranges, and the U-Net's f32 errors against the f64-accumulated reference:
+/// (fast path, plain f32 reference).
+fn trace(model: &NeuralModel, photo: &Photo) -> (ActivationRanges, f64, f64) {
     let w = model.weights();
     let side = photo.side();
     let input = photo.network_input(model.config().log_mode);
     let (map, mut ranges) = reference::estimate_traced(w, &input, side, side, Accumulate::F64)
         .unwrap_or_else(|e| panic!("{e}"));
+    let fast = model
+        .cpu()
+        .unet
+        .estimate(&input, side, side)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let plain = reference::estimate(w, &input, side, side, Accumulate::F32)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let errors = (
+        normwise(&fast.data, &map.data),
+        normwise(&plain.data, &map.data),
+    );
     let c = map.channels;
     let scenes = [
         ([0.0, 0.0, D], [0.0, 0.0, D]),
@@ -54,7 +76,7 @@ fn trace(model: &NeuralModel, photo: &Photo) -> ActivationRanges {
             }
         }
     }
-    ranges
+    (ranges, errors.0, errors.1)
 }
 
 /// The table row of an entry: U-Net blocks (`est.enc1.0.ha1.gate` → `est.enc1.0`), the
@@ -76,7 +98,7 @@ fn main() {
     }
     let model = NeuralModel::embedded().unwrap_or_else(|e| panic!("{e}"));
     let t0 = std::time::Instant::now();
-    let per_photo: Vec<(String, usize, ActivationRanges)> = paths
+    let per_photo: Vec<(String, usize, (ActivationRanges, f64, f64))> = paths
         .par_iter()
         .map(|p| {
             let photo = Photo::load(p).unwrap_or_else(|e| panic!("{e}"));
@@ -88,15 +110,17 @@ fn main() {
         })
         .collect();
     let mut all = ActivationRanges::default();
-    println!("| photo | side | max \\|activation\\| | where |");
-    println!("|---|---:|---:|---|");
-    for (name, side, r) in &per_photo {
+    println!(
+        "| photo | side | max \\|activation\\| | where | U-Net f32 fast vs f64 | U-Net plain f32 vs f64 |"
+    );
+    println!("|---|---:|---:|---|---:|---:|");
+    for (name, side, (r, fast, plain)) in &per_photo {
         let (n, m) =
             r.entries.iter().fold(
                 ("", 0.0f32),
                 |a, (n, m)| if *m > a.1 { (n.as_str(), *m) } else { a },
             );
-        println!("| {name} | {side} | {m:.2} | `{n}` |");
+        println!("| {name} | {side} | {m:.2} | `{n}` | {fast:.2e} | {plain:.2e} |");
         all.merge(r);
     }
     println!();
