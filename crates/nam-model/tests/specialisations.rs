@@ -356,3 +356,44 @@ fn specialised_paths_reject_bad_regions_queries_and_sources() {
     net.render_log_prepared(&prep, &[], &[], &[], &mut [])
         .unwrap();
 }
+
+#[test]
+fn streamed_region_relight_matches_the_prepared_one_for_every_source_pair() {
+    let net = RenderNet::new(&weights(19)).unwrap().with_tile(6);
+    let (h, w) = (7, 9);
+    let m = map(h, w, 17);
+    let prep = net.prepare(&m).unwrap();
+    let roi = Roi {
+        row: 1,
+        col: 2,
+        height: 4,
+        width: 6,
+    };
+    let (pl, pv) = (Source::Point(LIGHT), Source::Point(VIEW));
+    let (dl, dv) = (
+        Source::Distant([0.4, -0.3, 1.0]),
+        Source::Distant([0.0, 0.2, 1.0]),
+    );
+    for (light, view) in [(pl, pv), (dl, dv), (pl, dv), (dl, pv)] {
+        for r in [roi, Roi::full(h, w)] {
+            let streamed = net.relight_sources(&m, light, view, r).unwrap();
+            let prepared = net.relight_prepared(&prep, light, view, r).unwrap();
+            assert_eq!((streamed.height, streamed.width), (r.height, r.width));
+            assert_close(
+                &format!("streamed {light:?} {view:?} {r:?}"),
+                &streamed.data,
+                &prepared.data,
+                PREPARED_TOL,
+            );
+        }
+    }
+    // The full point/point region is the general relight.
+    let general = net.relight(&m, LIGHT, VIEW).unwrap();
+    let streamed = net.relight_sources(&m, pl, pv, Roi::full(h, w)).unwrap();
+    assert_close(
+        "streamed vs general",
+        &streamed.data,
+        &general.data,
+        PREPARED_TOL,
+    );
+}
