@@ -31,7 +31,15 @@ pub fn half_vector(wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
 }
 
 fn normalize_or_normal(v: [f32; 3]) -> [f32; 3] {
-    let n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    let mut n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    let mut v = v;
+    if n2.is_infinite() && v.iter().all(|x| x.is_finite()) {
+        // |v|² overflowed (a light at ~1e20): rescale by the largest component first; the
+        // direction is the same and the usual path below stays bit-identical to torch.
+        let m = v.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        v = v.map(|x| x / m);
+        n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    }
     if n2.is_nan() || n2 < HALF_VECTOR_GUARD || !n2.is_finite() {
         return [0.0, 0.0, 1.0];
     }
@@ -40,6 +48,7 @@ fn normalize_or_normal(v: [f32; 3]) -> [f32; 3] {
     let n = n2.sqrt();
     [v[0] / n, v[1] / n, v[2] / n]
 }
+
 
 /// Per-pixel `(ωi, ωo)` for a point light at `light` and a pinhole view at `view`
 /// (both in surface-frame units), row-major over the H×W image.
@@ -67,4 +76,21 @@ pub fn capture_half_z(row: usize, col: usize, height: usize, width: usize) -> f3
     let [x, y, _] = pixel_position(row, col, height, width);
     let d = CAPTURE_DISTANCE;
     d / (x * x + y * y + d * d).sqrt()
+}
+
+#[cfg(test)]
+mod overflow_tests {
+    use super::direction;
+
+    #[test]
+    fn far_lights_keep_their_direction_when_the_squared_length_overflows() {
+        let d = direction([0.0; 3], [1e20, 0.0, 1.0]);
+        assert!(
+            (d[0] - 1.0).abs() < 1e-6 && d[2] > 0.0 && d[2] < 1e-6,
+            "{d:?}"
+        );
+        let d = direction([0.0; 3], [3e38, -3e38, 3e38]);
+        let r = 1.0 / 3f32.sqrt();
+        assert!((d[0] - r).abs() < 1e-6 && (d[1] + r).abs() < 1e-6, "{d:?}");
+    }
 }

@@ -804,9 +804,29 @@ fn triple(d: &[f32]) -> [f32; 9] {
     c
 }
 
+/// ln(f32::MAX), rounded down: the largest log value whose `expm1` is finite.
+const LN_F32_MAX: f32 = 88.722_83;
+
 /// `max(expm1(y), 0)`: log-space network output to radiance (NaN maps to 0).
 #[inline]
 pub fn radiance_from_log(y: f32) -> f32 {
-    let r = y.exp_m1();
+    // Capped at ln(f32::MAX) so a saturated network gives f32::MAX, never +Inf.
+    let r = if y > LN_F32_MAX { LN_F32_MAX } else { y }.exp_m1();
     if r > 0.0 { r } else { 0.0 }
+}
+
+#[cfg(test)]
+mod radiance_tests {
+    use super::radiance_from_log;
+
+    #[test]
+    fn radiance_is_finite_and_non_negative_for_every_log_value() {
+        for y in [100.0, 1e30, f32::INFINITY, f32::MAX] {
+            let r = radiance_from_log(y);
+            assert!(r.is_finite() && r > 1e38, "{y} -> {r}");
+        }
+        assert_eq!(radiance_from_log(f32::NAN), 0.0);
+        assert_eq!(radiance_from_log(-5.0), 0.0);
+        assert!((radiance_from_log(1.0) - (1f32.exp() - 1.0)).abs() < 1e-6);
+    }
 }

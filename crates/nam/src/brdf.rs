@@ -77,7 +77,7 @@ impl<'a> NeuralBrdf<'a> {
         let mut visible = Vec::with_capacity(queries.len());
         for q in queries {
             let t = self.texel(q.uv)?;
-            let (i, o) = match (q.wi.try_normalize(), q.wo.try_normalize()) {
+            let (i, o) = match (unit(q.wi), unit(q.wo)) {
                 (Some(i), Some(o)) => (i, o),
                 _ => {
                     return Err(NamError::Query(format!(
@@ -171,4 +171,10 @@ impl<'a> NeuralBrdf<'a> {
         }
         cosine_hemisphere_pdf(wi.normalize_or_zero())
     }
+}
+
+/// `v / |v|`, computed in f64 so tiny (|v| < 1e-19) and huge vectors normalise too; `None`
+/// for zero or non-finite vectors.
+fn unit(v: Vec3) -> Option<Vec3> {
+    v.as_dvec3().try_normalize().map(|d| d.as_vec3())
 }

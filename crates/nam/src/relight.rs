@@ -60,6 +60,15 @@ pub fn relight_roi(
         )));
     }
     let mut img = RgbImage::zeros(roi.width, roi.height)?;
+    let (light, view) = (light_source(scene), view_source(scene));
+    let (Source::Point(l) | Source::Distant(l), Source::Point(v) | Source::Distant(v)) =
+        (light, view);
+    if !l.iter().chain(&v).all(|x| x.is_finite()) {
+        return Err(NamError::Query(format!(
+            "light and view coordinates must fit in f32 (|x| < 3.4e38), got {:?} and {:?}",
+            scene.light, scene.view
+        )));
+    }
     if !above_surface(scene) {
         return Ok(img);
     }
@@ -67,7 +76,6 @@ pub fn relight_roi(
         Some(gpu) => gpu?,
         None => {
             let net = &model.cpu().render;
-            let (light, view) = (light_source(scene), view_source(scene));
             net.relight_sources(material.params(), light, view, roi)?
                 .data
         }

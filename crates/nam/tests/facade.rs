@@ -321,3 +321,24 @@ fn directional_orthographic_relight_equals_per_query_evaluation() {
         );
     }
 }
+
+#[test]
+fn coordinates_beyond_f32_are_errors_and_tiny_directions_still_evaluate() {
+    let model = tiny();
+    let m = grey_material(&model, 6);
+    let scene = Scene::new(
+        Light::Point(point(1e39, 0.0, 1.0)),
+        View::Point(point(0.0, 0.0, 4.0)),
+    );
+    let err = relight(&model, &m, &scene).expect_err("1e39 does not fit in f32");
+    assert!(err.to_string().contains("fit in f32"), "{err}");
+    let brdf = NeuralBrdf::new(&model, &m).expect("bind");
+    let q = |wi: Vec3| BrdfQuery {
+        uv: Vec2::new(0.5, 0.5),
+        wi,
+        wo: Vec3::new(0.1, 0.2, 0.9),
+    };
+    let tiny_dir = brdf.eval(&[q(Vec3::new(0.0, 0.0, 1e-30))]).expect("tiny wi");
+    let unit_dir = brdf.eval(&[q(Vec3::Z)]).expect("unit wi");
+    assert_eq!(tiny_dir, unit_dir);
+}
