@@ -46,8 +46,9 @@ pub use material::{NeuralMaterial, write_atomic};
 #[cfg(feature = "default-model")]
 pub use model::EMBEDDED_MODEL;
 pub use model::{BackendKind, NeuralModel};
+pub use nam_model::input::network_input;
 pub use nam_model::{Roi, Source};
-pub use photo::{MAX_PHOTO_SIDE, Photo, network_input};
+pub use photo::{MAX_PHOTO_SIDE, Photo};
 pub use relight::{Scene, relight, relight_roi};
 pub use sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere};
 

@@ -125,7 +125,9 @@ impl NeuralModel {
 
     /// Runs estimation and image relighting on the caller's wgpu device from now on.
     /// Weights are uploaded once here; pipelines are built lazily on first use.
-    /// `adapter_type` (`adapter.get_info().device_type`) selects kernel variants.
+    /// `adapter_type` (`adapter.get_info().device_type`) selects kernel variants. Request
+    /// `Features::SHADER_F16` for `Precision::F16`, and on CPU adapters (lavapipe)
+    /// `Features::SUBGROUP`, which enables the texture matmul (≈25× the buffer kernel there).
     #[cfg(feature = "gpu")]
     pub fn attach_gpu(
         &mut self,
@@ -166,7 +168,7 @@ impl NeuralModel {
     /// Estimates the neural material of a photo (runs `M_est` once).
     pub fn estimate(&self, photo: &Photo) -> Result<NeuralMaterial> {
         let side = photo.side();
-        let input = photo.network_input(self.config().log_mode);
+        let input = photo.network_input(self.config().log_mode)?;
         #[cfg(feature = "gpu")]
         if let Some(res) = self.with_gpu(|net| Ok(net.estimate(&input, side, side)?)) {
             let data = res?;

@@ -6,17 +6,14 @@
 
 use crate::error::{NamError, Result};
 use nam_ggx::color::srgb_decode;
-use nam_ggx::geometry::capture_half_z;
 use nam_ggx::imageio::{FileKind, read_rgb};
+use nam_model::input::network_input;
 use nam_weights::LogMode;
 use std::path::Path;
 
 /// Largest accepted photo side in pixels. The U-Net's activations at C=64 take
 /// ≈ 64·(1+…)·H·W floats; 4096² is where that stops fitting a typical machine.
 pub const MAX_PHOTO_SIDE: usize = 4096;
-
-/// LDR photos are clamped just below 1 before log compression, as in training.
-const LDR_CLAMP: f32 = 0.999_999;
 
 /// A validated linear-RGB photo, row-major, channels interleaved.
 #[derive(Debug, Clone, PartialEq)]
@@ -112,30 +109,12 @@ impl Photo {
         Self::from_linear_rgb(side, side, out.into_raw())
     }
 
-    /// The 4-channel network input, CHW (`[4, side, side]`); see [`network_input`].
-    pub fn network_input(&self, mode: LogMode) -> Vec<f32> {
-        network_input(&self.rgb, self.side, self.side, mode)
+    /// The 4-channel network input, CHW (`[4, side, side]`): `ln(1 + clamp(rgb))` per the
+    /// model's log mode and the capture half-vector z (docs/FORMAT.md); see
+    /// [`nam_model::input::network_input`].
+    pub fn network_input(&self, mode: LogMode) -> Result<Vec<f32>> {
+        Ok(network_input(&self.rgb, self.side, self.side, mode)?)
     }
-}
-
-/// The 4-channel network input, CHW (`[4, height, width]`), from linear RGB (HWC):
-/// `ln(1 + clamp(rgb))` per the model's log mode, and the capture half-vector z
-/// (docs/FORMAT.md). `rgb.len()` must be `3·height·width`.
-pub fn network_input(rgb: &[f32], height: usize, width: usize, mode: LogMode) -> Vec<f32> {
-    let n = height * width;
-    debug_assert_eq!(rgb.len(), 3 * n);
-    let mut out = vec![0.0f32; 4 * n];
-    for (k, px) in rgb.chunks_exact(3).enumerate().take(n) {
-        for c in 0..3 {
-            let v = match mode {
-                LogMode::Ldr => px[c].clamp(0.0, LDR_CLAMP),
-                LogMode::Hdr => px[c].max(0.0),
-            };
-            out[c * n + k] = v.ln_1p();
-        }
-        out[3 * n + k] = capture_half_z(k / width, k % width, height, width) as f32;
-    }
-    out
 }
 
 /// Reads any supported image as linear RGB: LDR files are sRGB-decoded.
@@ -195,10 +174,10 @@ mod tests {
     #[test]
     fn ldr_input_clamps_and_hdr_input_keeps_large_values() {
         let p = Photo::from_linear_rgb(1, 1, vec![1e6, -3.0, 0.5]).expect("valid");
-        let ldr = p.network_input(LogMode::Ldr);
-        assert!((ldr[0] - LDR_CLAMP.ln_1p()).abs() < 1e-7);
+        let ldr = p.network_input(LogMode::Ldr).expect("input");
+        assert!((ldr[0] - nam_model::input::LDR_CLAMP.ln_1p()).abs() < 1e-7);
         assert_eq!(ldr[1], 0.0);
-        let hdr = p.network_input(LogMode::Hdr);
+        let hdr = p.network_input(LogMode::Hdr).expect("input");
         assert!((hdr[0] - 1e6f32.ln_1p()).abs() < 1e-5);
         // A 1×1 photo's only pixel is the centre: half vector straight up.
         assert!((hdr[3] - 1.0).abs() < 1e-7);

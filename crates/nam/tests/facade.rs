@@ -43,7 +43,7 @@ fn network_input_matches_torch_golden() {
     let photo = &g.tensors()["photo"];
     let (h, w) = (photo.shape()[0], photo.shape()[1]);
     let want = g.get("input", &[4, h, w]).expect("input");
-    let got = nam::network_input(photo.data(), h, w, LogMode::Ldr);
+    let got = nam::network_input(photo.data(), h, w, LogMode::Ldr).expect("input");
     let worst = got
         .iter()
         .zip(want)

@@ -137,7 +137,7 @@ fn hdr_log_input_up_to_1e6_keeps_the_unet_finite() {
     let side = 13;
     let mut rgb = textured(side);
     rgb.iter_mut().step_by(3).for_each(|x| *x *= 1e6);
-    let input = nam::network_input(&rgb, side, side, LogMode::Hdr);
+    let input = nam::network_input(&rgb, side, side, LogMode::Hdr).expect("finite photo");
     let max_in = input[..3 * side * side]
         .iter()
         .fold(0.0f32, |a, &b| a.max(b));
@@ -703,7 +703,9 @@ fn trace(photo: &Photo, pixel_step: usize) -> Traced {
     use nam_model::reference::{self, Accumulate};
     let w = model().weights();
     let side = photo.side();
-    let input = photo.network_input(model().config().log_mode);
+    let input = photo
+        .network_input(model().config().log_mode)
+        .expect("finite photo");
     let (reference_map, mut ranges) =
         reference::estimate_traced(w, &input, side, side, Accumulate::F64).expect("reference");
     let fast = model()
