@@ -309,7 +309,7 @@ impl Prepared {
             (MethodSpec::Neural(cfg), Some(model)) => {
                 let photo = Photo::from_linear_rgb(side, side, m.photo.clone())?;
                 if cfg.backend == Backend::CpuReference {
-                    let input = photo.network_input(model.config().log_mode);
+                    let input = photo.network_input(model.config().log_mode)?;
                     let map =
                         reference::estimate(model.weights(), &input, side, side, Accumulate::F32)?;
                     Ok(Estimate::Reference(map))
