@@ -33,6 +33,23 @@ fn grey_material(model: &NeuralModel, side: usize) -> NeuralMaterial {
     model.estimate(&photo).expect("estimate")
 }
 
+/// Radiance `img` equals `π · eval(query k)` at every pixel `k`, within [`PATH_TOL`].
+fn assert_image_matches_queries(
+    img: &nam::RgbImage<f32>,
+    brdf: &NeuralBrdf<'_>,
+    queries: &[BrdfQuery],
+) {
+    let f = brdf.eval(queries).expect("eval");
+    for (k, fk) in f.iter().enumerate() {
+        let r = Vec3::from_slice(&img.data()[k * 3..k * 3 + 3]);
+        let want = *fk * std::f32::consts::PI;
+        assert!(
+            (r - want).abs().max_element() <= PATH_TOL * (1.0 + want.abs().max_element()),
+            "pixel {k}: {r} vs {want}"
+        );
+    }
+}
+
 fn point(x: f64, y: f64, z: f64) -> Vec3d {
     Vec3d::from_array([x, y, z])
 }
@@ -122,15 +139,7 @@ fn point_light_relight_matches_per_query_evaluation() {
             }
         })
         .collect();
-    let f = brdf.eval(&queries).expect("eval");
-    for (k, fk) in f.iter().enumerate() {
-        let r = Vec3::from_slice(&img.data()[k * 3..k * 3 + 3]);
-        let want = *fk * std::f32::consts::PI;
-        assert!(
-            (r - want).abs().max_element() <= PATH_TOL * (1.0 + want.abs().max_element()),
-            "pixel {k}: {r} vs {want}"
-        );
-    }
+    assert_image_matches_queries(&img, &brdf, &queries);
 }
 
 #[test]
@@ -311,15 +320,7 @@ fn directional_orthographic_relight_equals_per_query_evaluation() {
             wo,
         })
         .collect();
-    let f = brdf.eval(&queries).expect("eval");
-    for (k, fk) in f.iter().enumerate() {
-        let r = Vec3::from_slice(&img.data()[k * 3..k * 3 + 3]);
-        let want = *fk * std::f32::consts::PI;
-        assert!(
-            (r - want).abs().max_element() <= PATH_TOL * (1.0 + want.abs().max_element()),
-            "pixel {k}: {r} vs {want}"
-        );
-    }
+    assert_image_matches_queries(&img, &brdf, &queries);
 }
 
 #[test]
@@ -338,7 +339,9 @@ fn coordinates_beyond_f32_are_errors_and_tiny_directions_still_evaluate() {
         wi,
         wo: Vec3::new(0.1, 0.2, 0.9),
     };
-    let tiny_dir = brdf.eval(&[q(Vec3::new(0.0, 0.0, 1e-30))]).expect("tiny wi");
+    let tiny_dir = brdf
+        .eval(&[q(Vec3::new(0.0, 0.0, 1e-30))])
+        .expect("tiny wi");
     let unit_dir = brdf.eval(&[q(Vec3::Z)]).expect("unit wi");
     assert_eq!(tiny_dir, unit_dir);
 }
