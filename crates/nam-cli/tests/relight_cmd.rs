@@ -334,3 +334,51 @@ fn bad_inputs_fail_cleanly_without_output() {
         "bad.nam",
     );
 }
+
+#[test]
+fn resize_sets_the_material_size_and_is_refused_for_materials() {
+    let dir = tmp();
+    let photo = small_photo(dir.path(), 24);
+    let nam = dir.path().join("m.nam");
+    ok(&[
+        "estimate",
+        s(&photo),
+        "--resize",
+        "12",
+        "-o",
+        s(&nam),
+        "--backend",
+        "cpu",
+    ]);
+    let info = ok(&["info", s(&nam)]);
+    assert!(info.contains("12×12 pixels"), "{info}");
+    let out = dir.path().join("r.png");
+    expect_failure(
+        &[
+            "relight",
+            s(&nam),
+            "--resize",
+            "8",
+            "--light",
+            "1,1,3",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "--resize apply to photos",
+    );
+    expect_failure(
+        &[
+            "relight",
+            s(&photo),
+            "--resize",
+            "0",
+            "--light",
+            "1,1,3",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "resize target 0",
+    );
+}

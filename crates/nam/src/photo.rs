@@ -86,7 +86,8 @@ impl Photo {
         &self.rgb
     }
 
-    /// Resamples to `side`×`side` with a box filter on downscale and bilinear on upscale
+    /// Resamples to `side`×`side` with a triangle (bilinear) filter on downscale and
+    /// Catmull-Rom on upscale
     /// (in linear space, so highlights keep their energy).
     pub fn resized(&self, side: usize) -> Result<Self> {
         if side == 0 || side > MAX_PHOTO_SIDE {

@@ -2,7 +2,7 @@
 //! `relight` calls skip the U-Net.
 
 use crate::backend::ModelArgs;
-use crate::cmd::relight::load_material;
+use crate::cmd::relight::{PhotoArgs, load_material};
 use anyhow::{Result, bail};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -16,9 +16,8 @@ pub struct Args {
     /// Square flash photo (.png/.jpg sRGB, .exr linear), taken from (0,0,4.01) with a
     /// co-located flash.
     pub photo: PathBuf,
-    /// Centre-crop a non-square photo to a square.
-    #[arg(long)]
-    pub crop: bool,
+    #[command(flatten)]
+    pub photo_args: PhotoArgs,
     #[command(flatten)]
     pub model: ModelArgs,
     /// Output material file (.nam: safetensors with the param map and the model's SHA-256).
@@ -48,7 +47,7 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let model = args.model.load()?;
     let started = Instant::now();
-    let material = load_material(&model, &args.photo, args.crop)?;
+    let material = load_material(&model, &args.photo, &args.photo_args)?;
     let (h, w) = material.size();
     material.save(&args.output)?;
     eprintln!(

@@ -4,5 +4,5 @@ pub mod bench;
 pub mod estimate;
 pub mod info;
 pub mod relight;
-pub mod report;
 pub mod render_ggx;
+pub mod report;

@@ -46,9 +46,8 @@ pub struct Args {
     /// Apply inverse-square falloff d²/|light − p|² (point lights).
     #[arg(long)]
     pub falloff: bool,
-    /// Centre-crop a non-square photo to a square (otherwise non-square photos are an error).
-    #[arg(long)]
-    pub crop: bool,
+    #[command(flatten)]
+    pub photo: PhotoArgs,
     #[command(flatten)]
     pub model: ModelArgs,
     /// Output image (.png sRGB 8-bit or .exr linear); numbered per frame for sweeps.
@@ -80,7 +79,7 @@ pub fn run(args: &Args) -> Result<()> {
         .map(|&l| scene(args, l))
         .collect::<Result<_>>()?;
     let model = args.model.load()?;
-    let material = load_material(&model, &args.input, args.crop)?;
+    let material = load_material(&model, &args.input, &args.photo)?;
 
     let (h, _) = material.size();
     let started = Instant::now();
@@ -152,14 +151,26 @@ fn scene(args: &Args, light: [f64; 3]) -> Result<Scene> {
     Ok(scene)
 }
 
+/// How a photo is brought to the network's square input.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PhotoArgs {
+    /// Centre-crop a non-square photo to a square (otherwise non-square photos are an error).
+    #[arg(long)]
+    pub crop: bool,
+    /// Resample the (square or cropped) photo to N×N pixels in linear light before
+    /// estimating, e.g. to relight a large photo faster (at most 4096).
+    #[arg(long, value_name = "N")]
+    pub resize: Option<usize>,
+}
+
 /// A photo is estimated (U-Net); a `.nam` file is loaded and checked against the model.
-pub fn load_material(model: &NeuralModel, input: &Path, crop: bool) -> Result<NeuralMaterial> {
+pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Result<NeuralMaterial> {
     let is_nam = input
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("nam"));
     if is_nam {
-        if crop {
-            bail!("--crop applies to photos, not to a saved material");
+        if how.crop || how.resize.is_some() {
+            bail!("--crop and --resize apply to photos, not to a saved material");
         }
         let material = NeuralMaterial::load(input)?;
         material.check_model(model).with_context(|| {
@@ -170,12 +181,15 @@ pub fn load_material(model: &NeuralModel, input: &Path, crop: bool) -> Result<Ne
         })?;
         return Ok(material);
     }
-    let photo = if crop {
+    let mut photo = if how.crop {
         Photo::load_cropped(input)
     } else {
         Photo::load(input)
     }
     .with_context(|| format!("reading {}", input.display()))?;
+    if let Some(side) = how.resize {
+        photo = photo.resized(side)?;
+    }
     Ok(model.estimate(&photo)?)
 }
 
