@@ -49,7 +49,6 @@ fn normalize_or_normal(v: [f32; 3]) -> [f32; 3] {
     [v[0] / n, v[1] / n, v[2] / n]
 }
 
-
 /// Per-pixel `(ωi, ωo)` for a point light at `light` and a pinhole view at `view`
 /// (both in surface-frame units), row-major over the H×W image.
 pub fn pixel_directions(

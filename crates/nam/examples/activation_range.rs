@@ -36,7 +36,9 @@ fn normwise(a: &[f32], b: &[f32]) -> f64 {
 fn trace(model: &NeuralModel, photo: &Photo) -> (ActivationRanges, f64, f64) {
     let w = model.weights();
     let side = photo.side();
-    let input = photo.network_input(model.config().log_mode).expect("photos are validated on load");
+    let input = photo
+        .network_input(model.config().log_mode)
+        .expect("photos are validated on load");
     let (map, mut ranges) = reference::estimate_traced(w, &input, side, side, Accumulate::F64)
         .unwrap_or_else(|e| panic!("{e}"));
     let fast = model
