@@ -382,3 +382,28 @@ fn resize_sets_the_material_size_and_is_refused_for_materials() {
         "resize target 0",
     );
 }
+
+#[test]
+fn alpha_channel_is_ignored_with_a_note() {
+    let dir = tmp();
+    let rgb = image::open(small_photo(dir.path(), 12))
+        .unwrap_or_else(|e| panic!("{e}"))
+        .to_rgba8();
+    let photo = dir.path().join("rgba.png");
+    rgb.save(&photo).unwrap_or_else(|e| panic!("{e}"));
+    let out = dir.path().join("o.png");
+    let o = run(&[
+        "relight",
+        s(&photo),
+        "--light",
+        "1,1,3",
+        "-o",
+        s(&out),
+        "--backend",
+        "cpu",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("alpha channel; it is ignored"), "{err}");
+    assert!(out.exists());
+}

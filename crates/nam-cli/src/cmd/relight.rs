@@ -181,6 +181,12 @@ pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Resu
         })?;
         return Ok(material);
     }
+    if has_alpha(input) {
+        eprintln!(
+            "note: {} has an alpha channel; it is ignored (the photo's RGB is used as is)",
+            input.display()
+        );
+    }
     let mut photo = if how.crop {
         Photo::load_cropped(input)
     } else {
@@ -191,6 +197,17 @@ pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Resu
         photo = photo.resized(side)?;
     }
     Ok(model.estimate(&photo)?)
+}
+
+/// Whether an image file declares an alpha channel (read from its header only; `false`
+/// when the header cannot be read: decoding reports that error properly).
+fn has_alpha(path: &Path) -> bool {
+    use image::ImageDecoder;
+    image::ImageReader::open(path)
+        .and_then(|r| r.with_guessed_format())
+        .ok()
+        .and_then(|r| r.into_decoder().ok())
+        .is_some_and(|d| d.color_type().has_alpha())
 }
 
 fn check_gif_path(path: &Path) -> Result<()> {
