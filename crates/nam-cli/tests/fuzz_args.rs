@@ -8,22 +8,8 @@
 mod args;
 
 use args::{MAX_COORDINATE, parse_non_negative, parse_vec3};
+use nam_weights::SplitMix64;
 use std::process::Command;
-
-/// splitmix64: a deterministic stream for the corpus.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-}
 
 /// Tokens the random strings are built from: number pieces, separators, words the float
 /// parser knows, and unicode look-alikes.
@@ -77,7 +63,7 @@ const TOKENS: &[&str] = &[
     "]",
 ];
 
-fn random_string(rng: &mut Rng) -> String {
+fn random_string(rng: &mut SplitMix64) -> String {
     let n = rng.below(12);
     (0..n).map(|_| TOKENS[rng.below(TOKENS.len())]).collect()
 }
@@ -140,7 +126,7 @@ fn check_non_negative(s: &str, tried: &mut usize) {
 
 #[test]
 fn random_and_hostile_vectors_match_the_oracle_and_never_panic() {
-    let mut rng = Rng(0xC0FF_EE00_D15E_A5E5);
+    let mut rng = SplitMix64(0xC0FF_EE00_D15E_A5E5);
     let mut tried = 0usize;
     let mut accepted = 0usize;
 

@@ -4,21 +4,7 @@
 //! A bounded corpus run (fixed seed and count).
 
 use nam_model::ParamMap;
-
-/// splitmix64.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-}
+use nam_weights::SplitMix64;
 
 fn sample() -> Vec<u8> {
     let (h, w, c) = (3, 2, 4);
@@ -67,7 +53,7 @@ fn corrupted_param_files_give_errors_not_panics() {
         (3, 2, 4, "ab12")
     );
     let header_end = 8 + u64::from_le_bytes(good[..8].try_into().expect("8 bytes")) as usize;
-    let mut rng = Rng(0x0BAD_F11E);
+    let mut rng = SplitMix64(0x0BAD_F11E);
     let mut tried = 0usize;
     let mut accepted = 0usize;
 

@@ -37,4 +37,4 @@ mod weights;
 pub use config::{LogMode, MAX_WIDTH, ModelConfig, Slopes};
 pub use error::{Result, WeightsError};
 pub use tensor_file::{Dtype, MAX_HEADER_BYTES, Tensor, TensorFile, write_safetensors};
-pub use weights::{Scope, Weights, expected_tensors};
+pub use weights::{Scope, SplitMix64, Weights, expected_tensors};

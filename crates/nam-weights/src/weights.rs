@@ -291,16 +291,30 @@ impl<'a> Scope<'a> {
     }
 }
 
-/// SplitMix64: tiny, seedable, good enough for test weights.
-struct SplitMix64(u64);
+/// SplitMix64: a tiny, seedable stream for test weights and the fuzz corpora of the
+/// workspace's tests (not for cryptography). The field is the state; seed it directly.
+#[derive(Debug, Clone)]
+pub struct SplitMix64(pub u64);
 
 impl SplitMix64 {
-    fn next(&mut self) -> u64 {
+    /// The next 64 random bits.
+    #[allow(clippy::should_implement_trait)] // not an iterator: the stream never ends
+    pub fn next(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
         z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
         z ^ (z >> 31)
+    }
+
+    /// An index below `n` (0 when `n` is 0), by modulo (its bias does not matter here).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+
+    /// A uniformly chosen element of a non-empty slice.
+    pub fn pick<'a, T>(&mut self, xs: &'a [T]) -> &'a T {
+        &xs[self.below(xs.len())]
     }
 
     /// Uniform in [-1, 1).

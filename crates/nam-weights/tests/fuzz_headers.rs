@@ -5,26 +5,8 @@
 //! layer lists, 1000 octaves, NaN-like and negative epsilons, wrong types). Every input must
 //! parse to `Ok` or `Err`, never panic. A bounded corpus run: fixed seed and count.
 
-use nam_weights::{ModelConfig, Slopes, TensorFile, Weights};
+use nam_weights::{ModelConfig, Slopes, SplitMix64, TensorFile, Weights};
 use serde_json::{Value, json};
-
-/// splitmix64.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-    fn pick<'a, T>(&mut self, xs: &'a [T]) -> &'a T {
-        &xs[self.below(xs.len())]
-    }
-}
 
 fn micro_config() -> ModelConfig {
     ModelConfig {
@@ -44,7 +26,7 @@ fn micro_config() -> ModelConfig {
 }
 
 /// Hostile JSON values for any field.
-fn hostile_value(rng: &mut Rng) -> Value {
+fn hostile_value(rng: &mut SplitMix64) -> Value {
     let xs = [
         json!(0),
         json!(1),
@@ -121,7 +103,7 @@ fn hostile_headers_and_configs_give_errors_not_panics() {
         .filter(|k| *k != "__metadata__")
         .cloned()
         .collect();
-    let mut rng = Rng(0xFEED_5AFE);
+    let mut rng = SplitMix64(0xFEED_5AFE);
     let t0 = std::time::Instant::now();
     let (mut tried, mut accepted) = (0usize, 0usize);
     assert!(parse(&good, &mut tried), "the base file parses");
@@ -181,8 +163,9 @@ fn hostile_headers_and_configs_give_errors_not_panics() {
                 }
                 2 => {
                     let end = data.len() as u64;
-                    let pick =
-                        |r: &mut Rng| *r.pick(&[0, 1, 4, end / 2, end, end + 4, u64::MAX, 1 << 40]);
+                    let pick = |r: &mut SplitMix64| {
+                        *r.pick(&[0, 1, 4, end / 2, end, end + 4, u64::MAX, 1 << 40])
+                    };
                     h[t.as_str()]["data_offsets"] = json!([pick(&mut rng), pick(&mut rng)]);
                 }
                 _ => h[t.as_str()] = hostile_value(&mut rng),
