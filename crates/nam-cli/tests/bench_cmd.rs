@@ -94,3 +94,53 @@ fn bench_rejects_bad_options_and_missing_models() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+/// Rows of the `--gpu` table, in order.
+const GPU_ROWS: [&str; 4] = [
+    "GPU general point relight 16²",
+    "GPU directional + orthographic 16²",
+    "CPU general point relight 16²",
+    "CPU directional + orthographic 16²",
+];
+
+#[test]
+fn bench_gpu_times_both_plans_on_the_adapter_and_the_cpu() {
+    let o = run(&["bench", "--size", "16", "--repeat", "1", "--gpu"]);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    if !o.status.success() && stderr.contains("no wgpu adapter") {
+        eprintln!("SKIP: no wgpu adapter\n{stderr}");
+        return;
+    }
+    assert!(o.status.success(), "{stdout}\n{stderr}");
+    let gpu_table = stdout
+        .split("\nGPU: ")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no GPU table:\n{stdout}"));
+    let rows: Vec<Vec<&str>> = gpu_table
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| path"))
+        .map(|l| l.trim_matches('|').split('|').map(str::trim).collect())
+        .collect();
+    assert_eq!(rows.len(), GPU_ROWS.len(), "{gpu_table}");
+    for (row, want) in rows.iter().zip(GPU_ROWS) {
+        assert_eq!(row[0], want, "{row:?}");
+        assert_eq!(row[1], "256", "{row:?}");
+        for col in [2, 3, 4] {
+            let v: f64 = row[col]
+                .parse()
+                .unwrap_or_else(|_| panic!("column {col} of {row:?}"));
+            assert!(v > 0.0 && v.is_finite(), "{row:?}");
+        }
+    }
+    assert_eq!(rows[0][4], "1.00");
+    assert_eq!(rows[2][4], "1.00");
+    assert!(
+        rows[0][5].parse::<f64>().is_ok_and(|x| x > 0.0),
+        "{:?}",
+        rows[0]
+    );
+    assert_eq!(rows[2][5], "—");
+}

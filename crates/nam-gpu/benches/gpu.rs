@@ -1,6 +1,7 @@
-//! GPU benchmarks: `render` and `estimate` at 256² on the default adapter, with GFLOP/s and
-//! the ratio to the CPU fast path (nam-model) measured in the same run, plus the FMA-peak
-//! probe, the tiled matmul kernel and the CPU sgemm rate it is compared with.
+//! GPU benchmarks: `render`, `render_directional` (ND_enc once) and `estimate` at 256² on
+//! the default adapter, with GFLOP/s and the ratio to the CPU fast path (nam-model) measured
+//! in the same run, plus the FMA-peak probe, the tiled matmul kernel and the CPU sgemm rate
+//! it is compared with.
 //!
 //! `cargo bench -p nam-gpu --bench gpu` (set `XDG_RUNTIME_DIR` on Mesa). The U-Net width is
 //! `NAM_BENCH_WIDTH` (default 8); `NAM_BENCH_SIDE` changes the 256 image side;
@@ -122,12 +123,32 @@ fn main() {
     let t_cpu_r = best_of(reps, || {
         cpu.render.render_batch(&params, &wi, &wo, &mut out).is_ok()
     });
+    // Directional light + orthographic view: one triple for every row (DESIGN §9).
+    let triple: [f32; 9] = dirs[..9]
+        .try_into()
+        .unwrap_or([0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0]);
+    let map = nam_model::ParamMap {
+        height: side,
+        width: side,
+        channels: 64,
+        data: params.clone(),
+    };
+    let t_gpu_d = best_of(reps, || {
+        net.render_directional(&params, &triple).map(|v| v.len())
+    });
+    let t_cpu_d = best_of(reps, || {
+        cpu.render
+            .relight_directional(&map, wi[0], wo[0])
+            .map(|r| r.data.len())
+    });
+    let directional_flops = 2.0 * net.render_directional_macs_per_query() as f64 * n as f64;
     let t_gpu_e = best_of(reps, || net.estimate(&input, side, side).map(|v| v.len()));
     let t_cpu_e = best_of(reps, || {
         cpu.unet.estimate(&input, side, side).map(|m| m.data.len())
     });
     for (what, flops, tg, tc) in [
         ("render", render_flops, t_gpu_r, t_cpu_r),
+        ("render directional", directional_flops, t_gpu_d, t_cpu_d),
         ("estimate", estimate_flops, t_gpu_e, t_cpu_e),
     ] {
         println!(
@@ -140,11 +161,20 @@ fn main() {
         );
     }
 
+    println!(
+        "directional plan / general plan speed: gpu {:.2} | cpu {:.2}",
+        t_gpu_r / t_gpu_d,
+        t_cpu_r / t_cpu_d
+    );
+
     let mut c = Criterion::default().sample_size(10).configure_from_args();
     let mut g = c.benchmark_group("nam-gpu");
     g.throughput(Throughput::Elements(n as u64));
     g.bench_function(format!("render_{side}"), |b| {
         b.iter(|| net.render(&params, &dirs).map(|v| v.len()))
+    });
+    g.bench_function(format!("render_directional_{side}"), |b| {
+        b.iter(|| net.render_directional(&params, &triple).map(|v| v.len()))
     });
     g.bench_function(format!("estimate_{side}_c{width}"), |b| {
         b.iter(|| net.estimate(&input, side, side).map(|v| v.len()))

@@ -23,6 +23,11 @@ const ESTIMATE_F32_MEAN_TOL: f32 = 2e-5;
 const RENDER_F32_TOL: f32 = 5e-5;
 /// f16 storage of weights and activations, 9 layers.
 const RENDER_F16_TOL: f32 = 1e-2;
+/// Directional plan vs the general plan, f32: the same kernels on the same rows, the ND_enc
+/// features computed on one row instead of each; only the upload path differs.
+const DIRECTIONAL_F32_TOL: f32 = 1e-6;
+/// The same in f16: the shared features are rounded to f16 on the host instead of in a kernel.
+const DIRECTIONAL_F16_TOL: f32 = 2e-3;
 
 fn fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -153,4 +158,72 @@ fn render_matches_torch_golden_on_net_tiny_f32() {
 #[test]
 fn render_matches_torch_golden_on_net_tiny_f16() {
     render_case(Precision::F16, RENDER_F16_TOL);
+}
+
+/// The directional plan (ND_enc once, render MLP per row) against the general plan with the
+/// same triple on every row, for every matmul variant; the batch is longer than one
+/// submission so the chunking of the MLP-only plan is covered too.
+fn directional_case(p: Precision, tol: f32) {
+    let (weights, golden) = load();
+    let Some(mut net) = network(p, &weights) else {
+        return;
+    };
+    let (params, _) = tensor(&golden, "r_params");
+    let (dirs, _) = tensor(&golden, "r_dirs");
+    let rows = params.len() / 64;
+    let triple: [f32; 9] = dirs[9..18].try_into().unwrap_or_else(|e| panic!("{e}"));
+    let repeated: Vec<f32> = (0..rows).flat_map(|_| triple).collect();
+    let chosen = net.context().matmul_variant();
+    for v in [chosen, MatmulVariant::Direct, MatmulVariant::Tiled] {
+        net.set_matmul_variant(v).unwrap_or_else(|e| panic!("{e}"));
+        let want = net
+            .render_log(params, &repeated)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let got = net
+            .render_log_directional(params, &triple)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let err = rel_err(&got, &want);
+        eprintln!("directional {p:?} {v:?}: {rows} rows, relative error {err:.3e} (tol {tol:.1e})");
+        assert!(err <= tol, "directional {p:?} {v:?}: {err} > {tol}");
+    }
+    net.set_matmul_variant(chosen)
+        .unwrap_or_else(|e| panic!("{e}"));
+    // Tiled past one submission: row r repeats golden row r % rows.
+    let n = nam_gpu::MAX_RENDER_ROWS as usize + 3 * rows + 5;
+    let big: Vec<f32> = (0..n)
+        .flat_map(|r| params[(r % rows) * 64..(r % rows + 1) * 64].iter().copied())
+        .collect();
+    let want = net
+        .render_directional(params, &triple)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let got = net
+        .render_directional(&big, &triple)
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(got.len(), 3 * n);
+    let tiled: Vec<f32> = (0..n)
+        .flat_map(|r| want[(r % rows) * 3..(r % rows + 1) * 3].iter().copied())
+        .collect();
+    let err = rel_err(&got, &tiled);
+    eprintln!("directional {p:?} {chosen:?}: {n} rows in chunks, relative error {err:.3e}");
+    assert!(err <= tol, "directional {p:?} chunked: {err} > {tol}");
+    // Empty input gives empty output; a partial row is an error.
+    assert!(
+        net.render_directional(&[], &triple)
+            .is_ok_and(|v| v.is_empty())
+    );
+    let err = net.render_directional(&params[..70], &triple);
+    assert!(
+        err.as_ref().is_err_and(|e| e.to_string().contains("param")),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn directional_render_matches_general_path_f32() {
+    directional_case(Precision::F32, DIRECTIONAL_F32_TOL);
+}
+
+#[test]
+fn directional_render_matches_general_path_f16() {
+    directional_case(Precision::F16, DIRECTIONAL_F16_TOL);
 }

@@ -3,7 +3,7 @@
 use crate::error::{NamError, Result};
 use crate::material::NeuralMaterial;
 use crate::photo::Photo;
-use nam_model::{Model, ParamMap};
+use nam_model::Model;
 use nam_weights::{ModelConfig, Weights};
 use sha2::{Digest, Sha256};
 use std::path::Path;
@@ -172,7 +172,7 @@ impl NeuralModel {
         #[cfg(feature = "gpu")]
         if let Some(res) = self.with_gpu(|net| Ok(net.estimate(&input, side, side)?)) {
             let data = res?;
-            let map = ParamMap {
+            let map = nam_model::ParamMap {
                 height: side,
                 width: side,
                 channels: self.config().param_channels,

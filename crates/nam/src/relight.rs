@@ -3,7 +3,7 @@
 use crate::error::{NamError, Result};
 use crate::material::NeuralMaterial;
 use crate::model::NeuralModel;
-use nam_ggx::geometry::{Light, View, directions_at, pixel_position};
+use nam_ggx::geometry::{Light, View, pixel_position};
 use nam_ggx::{RenderSettings, RgbImage, Vec3d};
 use nam_model::{Roi, Source};
 
@@ -29,9 +29,10 @@ fn above_surface(scene: &Scene) -> bool {
 /// A light or viewer on or below the surface plane gives a black image (the network knows
 /// no horizon; the GGX reference is exactly 0 there, DESIGN §7).
 ///
-/// On the CPU the cheapest exact pipeline is picked (DESIGN §9): with a directional light
-/// *and* an orthographic view the positional encoding and ND_enc run once for the whole
-/// image (≥ 5× faster); memory beyond the output stays bounded by the tile scratch.
+/// The cheapest exact pipeline is picked (DESIGN §9), on the CPU and on an attached GPU
+/// alike: with a directional light *and* an orthographic view the positional encoding and
+/// ND_enc run once for the whole image and each pixel runs only the render MLP (≥ 5× faster);
+/// on the CPU memory beyond the output stays bounded by the tile scratch.
 pub fn relight(
     model: &NeuralModel,
     material: &NeuralMaterial,
@@ -121,17 +122,22 @@ fn direction_triples(scene: &Scene, h: usize, w: usize, roi: Roi) -> Vec<f32> {
     let mut dirs = Vec::with_capacity(roi.height * roi.width * 9);
     for i in roi.row..roi.row + roi.height {
         for j in roi.col..roi.col + roi.width {
-            let t = directions_at(&scene.light, &scene.view, pixel_position(i, j, h, w))
-                .map(|d| d.cast::<f32>().to_array9())
-                .unwrap_or([0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0]);
+            let t = nam_ggx::geometry::directions_at(
+                &scene.light,
+                &scene.view,
+                pixel_position(i, j, h, w),
+            )
+            .map(|d| d.cast::<f32>().to_array9())
+            .unwrap_or([0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0]);
             dirs.extend_from_slice(&t);
         }
     }
     dirs
 }
 
-/// The GPU path, when a GPU is attached: per-pixel directions and the ROI's params
-/// uploaded, the batched MLP run.
+/// The GPU path, when a GPU is attached: the ROI's params uploaded with per-pixel
+/// directions, or, for a directional light and an orthographic view, with the one triple
+/// every pixel shares (ND_enc then runs once).
 #[cfg(feature = "gpu")]
 fn render_gpu(
     model: &NeuralModel,
@@ -148,6 +154,20 @@ fn render_gpu(
             p.data[start..start + roi.width * c].iter().copied()
         })
         .collect();
+    if let (Light::Directional(_), View::Orthographic(_)) = (scene.light, scene.view) {
+        let triple = direction_triples(
+            scene,
+            h,
+            w,
+            Roi {
+                height: 1,
+                width: 1,
+                ..roi
+            },
+        );
+        let triple: [f32; 9] = triple.try_into().ok()?;
+        return model.with_gpu(|net| Ok(net.render_directional(&params, &triple)?));
+    }
     let dirs = direction_triples(scene, h, w, roi);
     model.with_gpu(|net| Ok(net.render(&params, &dirs)?))
 }

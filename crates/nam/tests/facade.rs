@@ -345,3 +345,65 @@ fn coordinates_beyond_f32_are_errors_and_tiny_directions_still_evaluate() {
     let unit_dir = brdf.eval(&[q(Vec3::Z)]).expect("unit wi");
     assert_eq!(tiny_dir, unit_dir);
 }
+
+/// GPU (f32) against CPU image relights, per pixel: different summation orders and the
+/// directions rounded to f32 in another order, amplified by the top encoding octave.
+#[cfg(feature = "gpu")]
+const GPU_TOL: f32 = 2e-2;
+
+#[cfg(feature = "gpu")]
+#[test]
+fn gpu_relight_matches_the_cpu_for_directional_point_and_mixed_scenes() {
+    let Some(gpu) = nam::nam_gpu::request_device(false) else {
+        eprintln!("SKIP: no wgpu adapter");
+        return;
+    };
+    let cpu = tiny();
+    let m = grey_material(&cpu, 11);
+    let mut model = tiny();
+    model
+        .attach_gpu(
+            &gpu.device,
+            &gpu.queue,
+            gpu.info.device_type,
+            nam::nam_gpu::Precision::F32,
+        )
+        .expect("attach");
+    let scenes = [
+        Scene::new(
+            Light::Directional(point(0.4, -0.3, 0.87)),
+            View::Orthographic(point(-0.2, 0.1, 0.97)),
+        ),
+        Scene::new(
+            Light::Point(point(0.5, 0.2, 1.5)),
+            View::Point(point(0.0, 0.0, 4.0)),
+        ),
+        Scene::new(
+            Light::Directional(point(0.1, 0.6, 0.5)),
+            View::Point(point(0.3, 0.0, 2.0)),
+        ),
+    ];
+    let roi = Roi {
+        row: 2,
+        col: 3,
+        height: 5,
+        width: 7,
+    };
+    for scene in &scenes {
+        for r in [Roi::full(11, 11), roi] {
+            let want = relight_roi(&cpu, &m, scene, r).expect("cpu relight");
+            let got = relight_roi(&model, &m, scene, r).expect("gpu relight");
+            let err = got
+                .data()
+                .iter()
+                .zip(want.data())
+                .map(|(g, w)| (g - w).abs() / (1.0 + w.abs()))
+                .fold(0.0f32, f32::max);
+            assert!(
+                err <= GPU_TOL,
+                "{scene:?} {r:?}: GPU vs CPU {err} > {GPU_TOL}"
+            );
+            assert!(want.data().iter().any(|&v| v > 0.0), "{scene:?}: all black");
+        }
+    }
+}

@@ -25,6 +25,10 @@ pub struct Args {
     /// Model file (default: the embedded model).
     #[arg(long)]
     pub model: Option<PathBuf>,
+    /// Also time the image relights on the first wgpu adapter (lavapipe included): the
+    /// general and the directional plan, each against the same path on the CPU.
+    #[arg(long)]
+    pub gpu: bool,
 }
 
 /// Side of the sgemm roofline product (n × n × n).
@@ -35,22 +39,22 @@ const ROI_SIDE: usize = 64;
 const QUERIES: usize = 4096;
 
 /// One measured row of the table.
-struct Row {
-    name: String,
+pub(super) struct Row {
+    pub name: String,
     /// Pixels or queries computed (0: not a per-pixel path).
-    items: usize,
-    ms: f64,
+    pub items: usize,
+    pub ms: f64,
     /// Floating-point operations of one run (0: not counted).
-    flops: f64,
+    pub flops: f64,
 }
 
 /// A path to time: its row label, items per run, flops per run and the work.
-type Case<'a> = (String, usize, f64, Box<dyn FnMut() -> Result<()> + 'a>);
+pub(super) type Case<'a> = (String, usize, f64, Box<dyn FnMut() -> Result<()> + 'a>);
 
 /// Times every case round-robin: one warm-up round, then `repeat` rounds of
 /// one run per case; the best run of each is kept. Interleaving makes the
 /// ratios fair on a shared machine, where load changes between seconds.
-fn measure(cases: Vec<Case<'_>>, repeat: usize) -> Result<Vec<Row>> {
+pub(super) fn measure(cases: Vec<Case<'_>>, repeat: usize) -> Result<Vec<Row>> {
     let mut best = vec![f64::INFINITY; cases.len()];
     let mut cases = cases;
     for round in 0..=repeat {
@@ -282,7 +286,22 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let sg_gflops = rows[0].flops / rows[0].ms / 1e6;
     print!("{}", table(&rows, sg_gflops, threads(), s, rep));
+    if args.gpu {
+        gpu_rows(&model, map, rep)?;
+    }
     Ok(())
+}
+
+#[cfg(feature = "gpu")]
+fn gpu_rows(model: &NeuralModel, map: nam_model::ParamMap, rep: usize) -> Result<()> {
+    println!();
+    print!("{}", super::bench_gpu::run(model, map, rep)?);
+    Ok(())
+}
+
+#[cfg(not(feature = "gpu"))]
+fn gpu_rows(_: &NeuralModel, _: nam_model::ParamMap, _: usize) -> Result<()> {
+    bail!("--gpu: this nam-cli was built without the `gpu` feature")
 }
 
 /// Worker threads of rayon's global pool (what the networks run on).

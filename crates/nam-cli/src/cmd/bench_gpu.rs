@@ -1,0 +1,122 @@
+//! `nam-cli bench --gpu`: the image relights of the facade on a wgpu adapter, the general
+//! plan (positional encoding, ND_enc and render MLP per pixel) against the directional plan
+//! (ND_enc once, render MLP per pixel), each also timed on the CPU in the same rounds.
+
+use super::bench::{Case, Row, measure};
+use anyhow::{Context, Result, bail};
+use nam::geometry::{Light, View};
+use nam::{NeuralMaterial, NeuralModel, Scene, Vec3d, relight};
+use nam_model::ParamMap;
+use nam_model::geometry::CAPTURE_DISTANCE;
+use std::fmt::Write as _;
+
+/// Times the GPU and CPU relights of `map` (square) and returns the Markdown table.
+pub fn run(model: &NeuralModel, map: ParamMap, rep: usize) -> Result<String> {
+    let Some(gpu) = nam::nam_gpu::request_device(false) else {
+        bail!("--gpu: no wgpu adapter (see the message above)");
+    };
+    // Two copies with the same fingerprint, one with the GPU attached.
+    let on_cpu = NeuralModel::from_weights(model.weights().clone())?;
+    let mut on_gpu = NeuralModel::from_weights(model.weights().clone())?;
+    on_gpu
+        .attach_gpu(
+            &gpu.device,
+            &gpu.queue,
+            gpu.info.device_type,
+            nam::nam_gpu::Precision::F32,
+        )
+        .with_context(|| format!("setting up the networks on {}", gpu.info.name))?;
+    // The CPU table's counts (folded l0·l1), so rates compare across tables.
+    let net = &model.cpu().render;
+    let general_macs = net.macs_per_output(false, false) as u64;
+    let directional_macs = net.macs_per_output(false, true) as u64;
+    let s = map.height;
+    let n = s * map.width;
+    let material = NeuralMaterial::new(map, on_cpu.fingerprint().to_string())?;
+    let point = Scene::new(
+        Light::Point(Vec3d::from_array([1.5, 1.0, 3.5])),
+        View::Point(Vec3d::from_array([0.0, 0.0, f64::from(CAPTURE_DISTANCE)])),
+    );
+    let directional = Scene::new(
+        Light::Directional(Vec3d::from_array([1.5, 1.0, 3.5])),
+        View::Orthographic(Vec3d::from_array([0.0, 0.0, 1.0])),
+    );
+    let fl = |macs: u64| 2.0 * macs as f64 * n as f64;
+    let m = &material;
+    let (gf, df) = (fl(general_macs), fl(directional_macs));
+    let cases = vec![
+        case("GPU general point relight", &on_gpu, m, point, gf),
+        case(
+            "GPU directional + orthographic",
+            &on_gpu,
+            m,
+            directional,
+            df,
+        ),
+        case("CPU general point relight", &on_cpu, m, point, gf),
+        case(
+            "CPU directional + orthographic",
+            &on_cpu,
+            m,
+            directional,
+            df,
+        ),
+    ];
+    let rows = measure(cases, rep)?;
+    Ok(table(&rows, &gpu.info, s, rep))
+}
+
+/// Relighting `material` under `scene` with `model`'s backend, as a timed case.
+fn case<'a>(
+    name: &str,
+    model: &'a NeuralModel,
+    material: &'a NeuralMaterial,
+    scene: Scene,
+    flops: f64,
+) -> Case<'a> {
+    let (h, w) = material.size();
+    (
+        name.to_string(),
+        h * w,
+        flops,
+        Box::new(move || {
+            relight(model, material, &scene)?;
+            Ok(())
+        }),
+    )
+}
+
+/// Rows 0–1 are GPU, 2–3 the same paths on the CPU; FLOPs count the network with l0·l1
+/// folded, as the CPU table does.
+fn table(rows: &[Row], info: &nam::wgpu::AdapterInfo, s: usize, rep: usize) -> String {
+    let mut t = String::new();
+    let _ = writeln!(
+        t,
+        "GPU: {} ({:?}, {:?}), f32, size {s}², best of {rep} interleaved rounds after a warm-up round\n",
+        info.name, info.backend, info.device_type
+    );
+    let _ = writeln!(
+        t,
+        "| path | pixels | ms | GFLOP/s | × general (same backend) | GPU/CPU speed |"
+    );
+    let _ = writeln!(t, "|---|---:|---:|---:|---:|---:|");
+    for (k, r) in rows.iter().enumerate() {
+        let general = &rows[k - k % 2];
+        let other = &rows[(k + 2) % 4];
+        let gpu_over_cpu = if k < 2 {
+            format!("{:.2}", other.ms / r.ms)
+        } else {
+            "—".to_string()
+        };
+        let _ = writeln!(
+            t,
+            "| {} {s}² | {} | {:.2} | {:.1} | {:.2} | {gpu_over_cpu} |",
+            r.name,
+            r.items,
+            r.ms,
+            r.flops / r.ms / 1e6,
+            general.ms / r.ms,
+        );
+    }
+    t
+}
