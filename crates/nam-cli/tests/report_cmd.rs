@@ -13,7 +13,9 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap_or_else(|| panic!("non-UTF-8 path"))
 }
 
-fn report(out: &Path, model: &Path) -> Output {
+/// Runs `nam-cli report` at a tiny size; with `gpu` the GPU rows run on the default adapter
+/// (lavapipe in CI) when there is one.
+fn report(out: &Path, model: &Path, gpu: bool) -> Output {
     let heldout = root().join("assets/heldout");
     Command::new(env!("CARGO_BIN_EXE_nam-cli"))
         .args([
@@ -38,8 +40,9 @@ fn report(out: &Path, model: &Path) -> Output {
             "1,1,1",
             "--models",
             s(model),
-            "--no-gpu",
         ])
+        .args(if gpu { None } else { Some("--no-gpu") })
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
         .output()
         .unwrap_or_else(|e| panic!("cannot run nam-cli: {e}"))
 }
@@ -72,7 +75,7 @@ fn num(cell: &str) -> f64 {
 fn tiny_report_writes_a_table_with_finite_numbers_and_a_plot() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let out = dir.path().join("report");
-    let o = report(&out, &root().join("models/default.safetensors"));
+    let o = report(&out, &root().join("models/default.safetensors"), true);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "nam-cli report failed: {stderr}");
     let md = std::fs::read_to_string(out.join("report.md")).unwrap_or_else(|e| panic!("{e}"));
@@ -115,6 +118,28 @@ fn tiny_report_writes_a_table_with_finite_numbers_and_a_plot() {
         "U-Net width C of default"
     );
     assert!(find("default · CPU reference · f32")[6].ends_with("subset"));
+    // With an adapter, the GPU rows (general f32 and f16, directional f32) are measured; the
+    // general GPU f32 row computes what the CPU reference does on the same subset.
+    if md.contains(", GPU adapter ") {
+        let reference = find("default · CPU reference · f32");
+        for label in [
+            "default · GPU · f32",
+            "default · GPU · f16",
+            "default · GPU · f32 · directional",
+        ] {
+            let r = find(label);
+            for c in [7, 8, 9, 10, 11, 12] {
+                assert!(num(&r[c]).is_finite(), "{label}: column {c} = {}", r[c]);
+            }
+        }
+        let gpu = find("default · GPU · f32");
+        assert!(
+            (num(&gpu[7]) - num(&reference[7])).abs() <= 2e-3,
+            "GPU f32 {gpu:?} vs reference {reference:?}"
+        );
+    } else {
+        eprintln!("SKIP GPU rows: no adapter\n{md}");
+    }
     let all = table(&md, "## All protocols");
     let row = |label: &str| {
         all.iter()
@@ -137,7 +162,11 @@ fn tiny_report_writes_a_table_with_finite_numbers_and_a_plot() {
 #[test]
 fn a_missing_model_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-    let o = report(&dir.path().join("r"), &dir.path().join("nope.safetensors"));
+    let o = report(
+        &dir.path().join("r"),
+        &dir.path().join("nope.safetensors"),
+        false,
+    );
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(

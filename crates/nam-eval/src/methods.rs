@@ -65,8 +65,8 @@ impl Precision {
 pub enum Specialisation {
     /// The general pipeline: a point light and a perspective viewer, per-pixel directions.
     General,
-    /// Directional light and orthographic viewer (`RenderNet::relight_directional`): ND_enc
-    /// runs once per image. The protocol's point light and viewer are replaced by their
+    /// Directional light and orthographic viewer (the facade's constant-direction plan on
+    /// the CPU fast path or the GPU): ND_enc runs once per image. The protocol's point light and viewer are replaced by their
     /// directions from the material centre, so its error includes that approximation.
     Directional,
 }
@@ -266,9 +266,10 @@ impl Prepared {
                 )));
             }
         }
-        if cfg.specialisation == Specialisation::Directional && cfg.backend != Backend::CpuFast {
+        if cfg.specialisation == Specialisation::Directional && cfg.backend == Backend::CpuReference
+        {
             return Err(EvalError::Option(
-                "the directional specialisation is implemented on the CPU fast path".into(),
+                "the directional specialisation runs on the CPU fast path and the GPU".into(),
             ));
         }
         let width = model.config().width;
@@ -351,10 +352,16 @@ impl Prepared {
                 );
                 let net = self.bf16.as_ref().unwrap_or(&model.cpu().render);
                 if directional {
+                    // The point light and viewer seen from the origin, as a directional light
+                    // and an orthographic view: the facade's constant-direction plan.
                     let wi = lv.light.try_normalize().unwrap_or_else(nam::Vec3d::up);
                     let wo = lv.view.try_normalize().unwrap_or_else(nam::Vec3d::up);
-                    let rgb = net.relight_directional(mat.params(), to32(wi), to32(wo))?;
-                    Ok(rgb.data)
+                    if self.bf16.is_some() {
+                        let rgb = net.relight_directional(mat.params(), to32(wi), to32(wo))?;
+                        return Ok(rgb.data);
+                    }
+                    let far = Scene::new(Light::Directional(wi), View::Orthographic(wo));
+                    Ok(relight(model, mat, &far)?.into_vec())
                 } else if self.bf16.is_some() {
                     // What the facade's CPU path runs (protocol lights and viewers are above
                     // the surface, unit intensity, no falloff), with the bf16 network.

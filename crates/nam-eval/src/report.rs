@@ -38,8 +38,8 @@ fn stem(p: &Path) -> String {
 }
 
 /// The report's rows: the three baselines, then per model the CPU fast path (f32, bf16),
-/// the directional specialisation, the CPU reference and the GPU (f32, f16) — the last two on
-/// the subset.
+/// the directional specialisation, the CPU reference and the GPU (f32, f16, f32 directional)
+/// — the last two kinds on the subset.
 pub fn entries(o: &ReportOptions) -> Vec<Entry> {
     let full = |spec: MethodSpec, label: &str| Entry {
         spec,
@@ -95,6 +95,10 @@ pub fn entries(o: &ReportOptions) -> Vec<Entry> {
             v.push(subset(
                 neural(Gpu, F16, General),
                 format!("{name} · GPU · f16"),
+            ));
+            v.push(subset(
+                neural(Gpu, F32, Directional),
+                format!("{name} · GPU · f32 · directional"),
             ));
         }
     }
@@ -274,9 +278,11 @@ pub fn markdown(res: &RunResults, meta: &ReportMeta) -> String {
          {side}² photo; *ms / relit MP*: one relight of the {side}² image divided by its \
          megapixels (at this size per-call overheads weigh more than at 1 MP). CPU threads are \
          shared with other processes on this machine, so times carry noise of tens of percent.\n\
-         - **Specialisation** *directional*: `RenderNet::relight_directional` (ND_enc once per \
-         image, DESIGN §9) with the protocol's point light and viewer replaced by their \
-         directions from the material centre; its error includes that approximation.\n\
+         - **Specialisation** *directional*: the facade's `relight` with a directional light and \
+         an orthographic view (ND_enc once per image, DESIGN §9; on the CPU, or on the GPU where \
+         the backend says so; bf16 rows call `RenderNet::relight_directional`) with the \
+         protocol's point light and viewer replaced by their directions from the material \
+         centre; its error includes that approximation.\n\
          - **Pairs** are drawn with nam-ggx's seeded PCG-64 samplers using `evaluate.py`'s seeds \
          (`4242 + seed mod 100000 + 17·protocol`); torch draws different pairs from the same \
          distributions, so Rust and Python numbers agree statistically, not digit for digit."
@@ -343,7 +349,7 @@ mod tests {
             gpu: true,
         };
         let e = entries(&o);
-        assert_eq!(e.len(), 3 + 2 * 6);
+        assert_eq!(e.len(), 3 + 2 * 7);
         let reference = e
             .iter()
             .find(|x| x.label == "b · CPU reference · f32")
