@@ -38,7 +38,25 @@ enum Command {
     Bench(cmd::bench::Args),
 }
 
+/// libwayland-client, loaded by Mesa's Vulkan drivers while wgpu enumerates adapters, prints
+/// "error: XDG_RUNTIME_DIR is invalid or not set in the environment." whenever the variable is
+/// missing or relative (containers, CI, ssh sessions), even though no display is ever used.
+/// A successful run must not print errors, so point it at the temp dir when unusable; it only
+/// serves as the place where wayland would look for a compositor socket.
+#[cfg(feature = "gpu")]
+fn quiet_wayland_probe() {
+    let usable =
+        std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_absolute());
+    if !usable {
+        // SAFETY: called first thing in `main`, before any other thread exists, so nothing
+        // reads the environment concurrently.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
+    }
+}
+
 fn main() -> ExitCode {
+    #[cfg(feature = "gpu")]
+    quiet_wayland_probe();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::RenderGgx(args) => cmd::render_ggx::run(&args),
