@@ -5,14 +5,28 @@ use nam_ggx::imageio::read_rgb;
 use nam_ggx::{GgxPoint, Light, RenderSettings, SvbrdfMaps, Vec3, View, render};
 mod common;
 
-use common::{expect_failure, run, s, stderr, tmp};
+use common::{expect_failure, ok, run, s, stderr, tmp};
 use std::path::{Path, PathBuf};
 
 /// One 8-bit code: the PNG output is quantised after sRGB encoding.
 const PNG_CODE_TOL: f32 = 1.0 / 255.0 + 1e-6;
 
 fn example_maps() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets/example_maps.png")
+    common::root().join("assets/example_maps.png")
+}
+
+/// `render-ggx MAPS --light LIGHT --view VIEW EXTRA… -o OUT`.
+fn ggx_args<'a>(
+    maps: &'a Path,
+    light: &'a str,
+    view: &'a str,
+    out: &'a Path,
+    extra: &[&'a str],
+) -> Vec<&'a str> {
+    let mut args = vec!["render-ggx", s(maps), "--light", light, "--view", view];
+    args.extend_from_slice(extra);
+    args.extend(["-o", s(out)]);
+    args
 }
 
 /// A small glossy test material (16×16, 4-panel PNG).
@@ -35,17 +49,7 @@ fn small_maps(dir: &Path) -> (PathBuf, SvbrdfMaps) {
 fn renders_bundled_example_to_a_256_square_png() {
     let d = tmp();
     let out = d.path().join("out.png");
-    let o = run(&[
-        "render-ggx",
-        s(&example_maps()),
-        "--light",
-        "1,1,4",
-        "--view",
-        "0,0,4",
-        "-o",
-        s(&out),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    ok(&ggx_args(&example_maps(), "1,1,4", "0,0,4", &out, &[]));
     let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!((img.width(), img.height()), (256, 256));
     let mean: f32 = img.data().iter().sum::<f32>() / img.data().len() as f32;
@@ -60,17 +64,7 @@ fn exr_output_is_the_linear_f32_library_render() {
     let d = tmp();
     let (maps_path, maps) = small_maps(d.path());
     let out = d.path().join("out.exr");
-    let o = run(&[
-        "render-ggx",
-        s(&maps_path),
-        "--light",
-        "-1.5,0.5,3",
-        "--view",
-        "0.2,0,4",
-        "-o",
-        s(&out),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    ok(&ggx_args(&maps_path, "-1.5,0.5,3", "0.2,0,4", &out, &[]));
     let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
     let settings = RenderSettings::new(
         Light::Point(Vec3::new(-1.5, 0.5, 3.0)),
@@ -89,19 +83,8 @@ fn png_output_is_srgb_encoded_clamped_radiance() {
     let d = tmp();
     let (maps_path, maps) = small_maps(d.path());
     let out = d.path().join("out.png");
-    let o = run(&[
-        "render-ggx",
-        s(&maps_path),
-        "--light",
-        "0,0,4.0108",
-        "--view",
-        "0,0,4.0108",
-        "--intensity",
-        "3",
-        "-o",
-        s(&out),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let (pos, extra) = ("0,0,4.0108", ["--intensity", "3"]);
+    ok(&ggx_args(&maps_path, pos, pos, &out, &extra));
     let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
     let cam = Vec3::new(0.0, 0.0, 4.0108);
     let settings = RenderSettings {
@@ -127,18 +110,10 @@ fn intensity_and_falloff_scale_the_exr() {
     let (maps_path, _) = small_maps(d.path());
     let a = d.path().join("a.exr");
     let b = d.path().join("b.exr");
-    let base = [
-        "render-ggx",
-        s(&maps_path),
-        "--light",
-        "0,0,8.0216",
-        "--view",
-        "0,0,4",
-    ];
-    let o = run(&[&base[..], &["-o", s(&a)]].concat());
-    assert!(o.status.success(), "{}", stderr(&o));
-    let o = run(&[&base[..], &["--intensity", "2", "--falloff", "-o", s(&b)]].concat());
-    assert!(o.status.success(), "{}", stderr(&o));
+    let (light, view) = ("0,0,8.0216", "0,0,4");
+    ok(&ggx_args(&maps_path, light, view, &a, &[]));
+    let extra = ["--intensity", "2", "--falloff"];
+    ok(&ggx_args(&maps_path, light, view, &b, &extra));
     let (ia, _) = read_rgb(&a).unwrap_or_else(|e| panic!("{e}"));
     let (ib, _) = read_rgb(&b).unwrap_or_else(|e| panic!("{e}"));
     // Light at 2d above the centre: falloff ≈ 1/4 near the centre, times intensity 2.
@@ -152,20 +127,8 @@ fn malformed_vectors_fail_with_expected_xyz() {
     let (maps_path, _) = small_maps(d.path());
     let out = d.path().join("out.png");
     for bad in ["1,2", "1,2,3,4", "a,b,c", "nan,0,4", "0,inf,4"] {
-        expect_failure(
-            &[
-                "render-ggx",
-                s(&maps_path),
-                "--light",
-                bad,
-                "--view",
-                "0,0,4",
-                "-o",
-                s(&out),
-            ],
-            &out,
-            "expected x,y,z",
-        );
+        let args = ggx_args(&maps_path, bad, "0,0,4", &out, &[]);
+        expect_failure(&args, &out, "expected x,y,z");
     }
 }
 
@@ -174,34 +137,10 @@ fn light_or_view_below_the_surface_is_an_error() {
     let d = tmp();
     let (maps_path, _) = small_maps(d.path());
     let out = d.path().join("out.png");
-    expect_failure(
-        &[
-            "render-ggx",
-            s(&maps_path),
-            "--light",
-            "1,1,-4",
-            "--view",
-            "0,0,4",
-            "-o",
-            s(&out),
-        ],
-        &out,
-        "--light must be above the surface (z > 0)",
-    );
-    expect_failure(
-        &[
-            "render-ggx",
-            s(&maps_path),
-            "--light",
-            "1,1,4",
-            "--view",
-            "0,0,0",
-            "-o",
-            s(&out),
-        ],
-        &out,
-        "--view must be above the surface (z > 0)",
-    );
+    let args = ggx_args(&maps_path, "1,1,-4", "0,0,4", &out, &[]);
+    expect_failure(&args, &out, "--light must be above the surface (z > 0)");
+    let args = ggx_args(&maps_path, "1,1,4", "0,0,0", &out, &[]);
+    expect_failure(&args, &out, "--view must be above the surface (z > 0)");
 }
 
 #[test]
@@ -209,37 +148,11 @@ fn negative_intensity_and_unknown_output_format_are_rejected() {
     let d = tmp();
     let (maps_path, _) = small_maps(d.path());
     let out = d.path().join("out.png");
-    expect_failure(
-        &[
-            "render-ggx",
-            s(&maps_path),
-            "--light",
-            "1,1,4",
-            "--view",
-            "0,0,4",
-            "--intensity",
-            "-1",
-            "-o",
-            s(&out),
-        ],
-        &out,
-        "expected a finite number",
-    );
+    let args = ggx_args(&maps_path, "1,1,4", "0,0,4", &out, &["--intensity", "-1"]);
+    expect_failure(&args, &out, "expected a finite number");
     let jpg = d.path().join("out.jpg");
-    expect_failure(
-        &[
-            "render-ggx",
-            s(&maps_path),
-            "--light",
-            "1,1,4",
-            "--view",
-            "0,0,4",
-            "-o",
-            s(&jpg),
-        ],
-        &jpg,
-        "output must end in .png",
-    );
+    let args = ggx_args(&maps_path, "1,1,4", "0,0,4", &jpg, &[]);
+    expect_failure(&args, &jpg, "output must end in .png");
 }
 
 #[test]
@@ -247,57 +160,21 @@ fn bad_map_files_fail_cleanly_without_output() {
     let d = tmp();
     let out = d.path().join("out.png");
     let missing = d.path().join("missing.png");
-    expect_failure(
-        &[
-            "render-ggx",
-            s(&missing),
-            "--light",
-            "1,1,4",
-            "--view",
-            "0,0,4",
-            "-o",
-            s(&out),
-        ],
-        &out,
-        "missing.png",
-    );
+    let args = ggx_args(&missing, "1,1,4", "0,0,4", &out, &[]);
+    expect_failure(&args, &out, "missing.png");
     let (good, _) = small_maps(d.path());
     let bytes = std::fs::read(&good).unwrap_or_else(|e| panic!("{e}"));
     let cut = d.path().join("cut.png");
     std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap_or_else(|e| panic!("{e}"));
-    expect_failure(
-        &[
-            "render-ggx",
-            s(&cut),
-            "--light",
-            "1,1,4",
-            "--view",
-            "0,0,4",
-            "-o",
-            s(&out),
-        ],
-        &out,
-        "cannot decode image",
-    );
+    let args = ggx_args(&cut, "1,1,4", "0,0,4", &out, &[]);
+    expect_failure(&args, &out, "cannot decode image");
     // A plain 16×16 image is not a 4-panel file.
     let square = d.path().join("square.exr");
     let img = nam_ggx::RgbImage::<f32>::zeros(16, 16).unwrap_or_else(|e| panic!("{e}"));
     nam_ggx::imageio::write_rgb(&square, &img, nam_ggx::imageio::PngDepth::Eight)
         .unwrap_or_else(|e| panic!("{e}"));
-    expect_failure(
-        &[
-            "render-ggx",
-            s(&square),
-            "--light",
-            "1,1,4",
-            "--view",
-            "0,0,4",
-            "-o",
-            s(&out),
-        ],
-        &out,
-        "must be 4·H wide",
-    );
+    let args = ggx_args(&square, "1,1,4", "0,0,4", &out, &[]);
+    expect_failure(&args, &out, "must be 4·H wide");
 }
 
 #[test]
@@ -305,30 +182,11 @@ fn failed_run_leaves_an_existing_output_untouched() {
     let d = tmp();
     let (maps_path, _) = small_maps(d.path());
     let out = d.path().join("keep.png");
-    let o = run(&[
-        "render-ggx",
-        s(&maps_path),
-        "--light",
-        "1,1,4",
-        "--view",
-        "0,0,4",
-        "-o",
-        s(&out),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    ok(&ggx_args(&maps_path, "1,1,4", "0,0,4", &out, &[]));
     let before = std::fs::read(&out).unwrap_or_else(|e| panic!("{e}"));
     let bad = d.path().join("bad.png");
     std::fs::write(&bad, b"\x89PNG\r\n\x1a\n garbage").unwrap_or_else(|e| panic!("{e}"));
-    let o = run(&[
-        "render-ggx",
-        s(&bad),
-        "--light",
-        "1,1,4",
-        "--view",
-        "0,0,4",
-        "-o",
-        s(&out),
-    ]);
+    let o = run(&ggx_args(&bad, "1,1,4", "0,0,4", &out, &[]));
     assert!(!o.status.success());
     let after = std::fs::read(&out).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(before, after);
@@ -339,20 +197,8 @@ fn output_into_missing_directory_fails_before_rendering() {
     let d = tmp();
     let (maps_path, _) = small_maps(d.path());
     let out = d.path().join("no/such/dir/out.png");
-    expect_failure(
-        &[
-            "render-ggx",
-            s(&maps_path),
-            "--light",
-            "1,1,4",
-            "--view",
-            "0,0,4",
-            "-o",
-            s(&out),
-        ],
-        &out,
-        "does not exist",
-    );
+    let args = ggx_args(&maps_path, "1,1,4", "0,0,4", &out, &[]);
+    expect_failure(&args, &out, "does not exist");
 }
 
 #[test]

@@ -4,8 +4,11 @@
 
 use std::path::{Path, PathBuf};
 
+mod common;
+
+use common::pattern_map;
 use nam_model::reference::{self, Accumulate};
-use nam_model::{ParamMap, RenderNet, UNet};
+use nam_model::{RenderNet, UNet};
 use nam_weights::{ModelConfig, TensorFile, Weights};
 
 /// U-Net params vs torch: |Δ| ≤ tol·(1 + |torch|). f32 convs summing up to
@@ -252,15 +255,7 @@ fn relight_fast_path_matches_reference_with_folded_first_layers() {
     let w = Weights::random(ModelConfig::standard(2), 6).unwrap();
     let net = RenderNet::new(&w).unwrap().with_tile(7); // odd tile: ragged last tile
     let (h, wd) = (5, 9);
-    let data: Vec<f32> = (0..h * wd * 64)
-        .map(|i| ((i * 53 % 97) as f32) / 48.0 - 1.0)
-        .collect();
-    let map = ParamMap {
-        height: h,
-        width: wd,
-        channels: 64,
-        data,
-    };
+    let map = pattern_map(h, wd, 53, 97, 48.0);
     let light = [1.5, 1.0, 3.5];
     let view = [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE];
     let img = net.relight(&map, light, view).unwrap();

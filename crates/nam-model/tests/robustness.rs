@@ -1,6 +1,9 @@
 //! Bad inputs give errors, never panics; degenerate-but-valid inputs give
 //! finite outputs (DESIGN §7).
 
+mod common;
+
+use common::{pattern, pattern_map};
 use nam_model::reference::{self, Accumulate};
 use nam_model::{ModelError, ParamMap, RenderNet, UNet};
 use nam_weights::{ModelConfig, Weights};
@@ -122,15 +125,7 @@ const DIRECTIONAL_TOL: f32 = 1e-5;
 fn directional_relight_matches_per_pixel_path_with_constant_directions() {
     let net = RenderNet::new(&weights()).unwrap().with_tile(5);
     let (h, w) = (3, 7);
-    let data: Vec<f32> = (0..h * w * 64)
-        .map(|i| ((i * 31 % 89) as f32) / 44.0 - 1.0)
-        .collect();
-    let map = ParamMap {
-        height: h,
-        width: w,
-        channels: 64,
-        data,
-    };
+    let map = pattern_map(h, w, 31, 89, 44.0);
     let wi = [0.3, -0.2, 0.932_738];
     let wo = [0.0, 0.6, 0.8];
     let fast = net.relight_directional(&map, wi, wo).unwrap();
@@ -183,9 +178,7 @@ fn param_map_roundtrips_through_nam_bytes_and_rejects_mismatches() {
 fn separate_pieces_compose_to_the_fused_pipeline_across_tiles() {
     let net = RenderNet::new(&weights()).unwrap().with_tile(7);
     let n = 20; // three tiles, the last one ragged
-    let params: Vec<f32> = (0..n * 64)
-        .map(|i| ((i * 13 % 41) as f32) / 20.0 - 1.0)
-        .collect();
+    let params = pattern(n * 64, 13, 41, 20.0);
     let wi: Vec<[f32; 3]> = (0..n)
         .map(|q| nam_model::geometry::direction([0.0; 3], [q as f32 * 0.1, 0.3, 1.0]))
         .collect();
@@ -223,15 +216,7 @@ fn bf16_relight_is_close_to_f32_and_not_identical() {
     let bf = f32net.clone().with_bf16().unwrap();
     assert!(bf.is_bf16());
     let (h, wd) = (9, 11); // ragged tiles and row blocks
-    let data: Vec<f32> = (0..h * wd * 64)
-        .map(|i| ((i * 29 % 83) as f32) / 41.0 - 1.0)
-        .collect();
-    let map = ParamMap {
-        height: h,
-        width: wd,
-        channels: 64,
-        data,
-    };
+    let map = pattern_map(h, wd, 29, 83, 41.0);
     let (light, view) = (
         [1.5, 1.0, 3.5],
         [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE],

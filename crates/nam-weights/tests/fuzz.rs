@@ -1,25 +1,10 @@
 //! "Error, never panic": thousands of corrupted model files must each produce
 //! `Ok` or `Err`, never a panic, and never an allocation beyond the file size.
 
-use nam_weights::{ModelConfig, Slopes, TensorFile, Weights, WeightsError};
+mod common;
 
-/// A very small but complete architecture so each parse is cheap.
-fn micro_config() -> ModelConfig {
-    ModelConfig {
-        width: 2,
-        param_channels: 4,
-        pe_octaves: 1,
-        nd_enc: vec![27, 6, 4],
-        render: vec![8, 6, 6, 3],
-        slopes: Slopes {
-            ha: 0.1,
-            nd_enc: 0.01,
-            render_hidden: 0.01,
-            render_out: 0.001,
-        },
-        ..ModelConfig::standard(2)
-    }
-}
+use common::{micro_config, parse_never_panics, safetensors_bytes};
+use nam_weights::{TensorFile, Weights, WeightsError};
 
 /// xorshift64*: deterministic corruption positions.
 struct Rng(u64);
@@ -33,19 +18,6 @@ impl Rng {
     fn below(&mut self, n: usize) -> usize {
         (self.next() % n.max(1) as u64) as usize
     }
-}
-
-fn parse_never_panics(bytes: &[u8], tried: &mut usize) {
-    *tried += 1;
-    let r = std::panic::catch_unwind(|| {
-        let _ = TensorFile::from_bytes(bytes, "fuzz");
-        let _ = Weights::from_bytes(bytes, "fuzz");
-    });
-    assert!(
-        r.is_ok(),
-        "panicked on input #{tried} ({} bytes)",
-        bytes.len()
-    );
 }
 
 #[test]
@@ -108,10 +80,7 @@ fn corrupted_files_give_errors_not_panics() {
 }
 
 fn raw_file(header: &str, data_len: usize) -> Vec<u8> {
-    let mut out = (header.len() as u64).to_le_bytes().to_vec();
-    out.extend_from_slice(header.as_bytes());
-    out.resize(out.len() + data_len, 0);
-    out
+    safetensors_bytes(header, &vec![0; data_len])
 }
 
 #[test]

@@ -5,25 +5,11 @@
 //! layer lists, 1000 octaves, NaN-like and negative epsilons, wrong types). Every input must
 //! parse to `Ok` or `Err`, never panic. A bounded corpus run: fixed seed and count.
 
-use nam_weights::{ModelConfig, Slopes, SplitMix64, TensorFile, Weights};
-use serde_json::{Value, json};
+mod common;
 
-fn micro_config() -> ModelConfig {
-    ModelConfig {
-        width: 2,
-        param_channels: 4,
-        pe_octaves: 1,
-        nd_enc: vec![27, 6, 4],
-        render: vec![8, 6, 6, 3],
-        slopes: Slopes {
-            ha: 0.1,
-            nd_enc: 0.01,
-            render_hidden: 0.01,
-            render_out: 0.001,
-        },
-        ..ModelConfig::standard(2)
-    }
-}
+use common::{micro_config, parse_never_panics, safetensors_bytes};
+use nam_weights::{SplitMix64, Weights};
+use serde_json::{Value, json};
 
 /// Hostile JSON values for any field.
 fn hostile_value(rng: &mut SplitMix64) -> Value {
@@ -64,21 +50,7 @@ fn split(bytes: &[u8]) -> (Value, Vec<u8>) {
 }
 
 fn join(header: &Value, data: &[u8]) -> Vec<u8> {
-    let h = header.to_string();
-    let mut out = (h.len() as u64).to_le_bytes().to_vec();
-    out.extend_from_slice(h.as_bytes());
-    out.extend_from_slice(data);
-    out
-}
-
-fn parse(bytes: &[u8], tried: &mut usize) -> bool {
-    *tried += 1;
-    let r = std::panic::catch_unwind(|| {
-        let a = TensorFile::from_bytes(bytes, "fuzz").is_ok();
-        let b = Weights::from_bytes(bytes, "fuzz").is_ok();
-        a && b
-    });
-    r.unwrap_or_else(|_| panic!("panicked on input #{tried} ({} bytes)", bytes.len()))
+    safetensors_bytes(&header.to_string(), data)
 }
 
 #[test]
@@ -106,7 +78,10 @@ fn hostile_headers_and_configs_give_errors_not_panics() {
     let mut rng = SplitMix64(0xFEED_5AFE);
     let t0 = std::time::Instant::now();
     let (mut tried, mut accepted) = (0usize, 0usize);
-    assert!(parse(&good, &mut tried), "the base file parses");
+    assert!(
+        parse_never_panics(&good, &mut tried),
+        "the base file parses"
+    );
 
     // 1. Config fields set to hostile values (one to three at a time), tensors intact.
     const CONFIGS: usize = 1500;
@@ -127,7 +102,7 @@ fn hostile_headers_and_configs_give_errors_not_panics() {
         }
         let mut h = header.clone();
         h["__metadata__"]["config"] = Value::String(c.to_string());
-        accepted += usize::from(parse(&join(&h, &data), &mut tried));
+        accepted += usize::from(parse_never_panics(&join(&h, &data), &mut tried));
     }
     // 2. Tensor entries with hostile dtype, shape and offsets.
     let dtypes = [
@@ -174,7 +149,7 @@ fn hostile_headers_and_configs_give_errors_not_panics() {
         if rng.below(10) == 0 {
             h["__metadata__"] = hostile_value(&mut rng);
         }
-        accepted += usize::from(parse(&join(&h, &data), &mut tried));
+        accepted += usize::from(parse_never_panics(&join(&h, &data), &mut tried));
     }
     eprintln!(
         "fuzz_headers: {tried} structured hostile model files parsed without a panic \
