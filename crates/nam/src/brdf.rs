@@ -19,6 +19,10 @@ use std::f32::consts::PI;
 /// Smallest cos θi `eval_fr` divides by: below it `f_r` would amplify network noise by >1e6.
 const MIN_COS_FOR_FR: f32 = 1e-6;
 
+/// Smallest batch [`NeuralBrdf::eval`] sends to an attached GPU: below it the upload,
+/// submission and readback cost more than the CPU's tile-fused evaluation.
+pub const GPU_MIN_QUERIES: usize = 4096;
+
 /// One evaluation query in the surface frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BrdfQuery {
@@ -42,7 +46,10 @@ pub struct BrdfSample {
     pub pdf: f32,
 }
 
-/// A neural material bound to its model, evaluated on the CPU (thread-safe, batched).
+/// A neural material bound to its model (thread-safe, batched). Batches of at least
+/// [`GPU_MIN_QUERIES`] run on the model's GPU when one is attached
+/// ([`NeuralModel::attach_gpu`]), smaller ones on the CPU; both give the same values within
+/// f32 summation order.
 #[derive(Debug, Clone, Copy)]
 pub struct NeuralBrdf<'a> {
     model: &'a NeuralModel,
@@ -91,11 +98,17 @@ impl<'a> NeuralBrdf<'a> {
             wi.push(i.to_array());
             wo.push(o.to_array());
         }
-        let mut r = vec![0.0f32; queries.len() * 3];
-        self.model
-            .cpu()
-            .render
-            .render_batch(&params, &wi, &wo, &mut r)?;
+        let r = match self.eval_gpu(&params, &wi, &wo) {
+            Some(gpu) => gpu?,
+            None => {
+                let mut r = vec![0.0f32; queries.len() * 3];
+                self.model
+                    .cpu()
+                    .render
+                    .render_batch(&params, &wi, &wo, &mut r)?;
+                r
+            }
+        };
         // R = π f_r cos θi  ⇒  f_r cos θi = R / π.
         Ok(r.chunks_exact(3)
             .zip(visible)
@@ -107,6 +120,35 @@ impl<'a> NeuralBrdf<'a> {
                 }
             })
             .collect())
+    }
+
+    /// Radiance `[n, 3]` of a large batch on the attached GPU; `None` for small batches or
+    /// without a GPU.
+    #[cfg(feature = "gpu")]
+    fn eval_gpu(
+        &self,
+        params: &[f32],
+        wi: &[[f32; 3]],
+        wo: &[[f32; 3]],
+    ) -> Option<Result<Vec<f32>>> {
+        if wi.len() < GPU_MIN_QUERIES {
+            return None;
+        }
+        let dirs: Vec<f32> = wi
+            .iter()
+            .zip(wo)
+            .flat_map(|(&i, &o)| {
+                let h = nam_model::geometry::half_vector(i, o);
+                [i, o, h].into_iter().flatten()
+            })
+            .collect();
+        self.model.with_gpu(|net| Ok(net.render(params, &dirs)?))
+    }
+
+    /// Without the `gpu` feature every batch runs on the CPU.
+    #[cfg(not(feature = "gpu"))]
+    fn eval_gpu(&self, _: &[f32], _: &[[f32; 3]], _: &[[f32; 3]]) -> Option<Result<Vec<f32>>> {
+        None
     }
 
     /// `f_r` alone (RGB): [`NeuralBrdf::eval`] divided by `cos θi` (guarded).

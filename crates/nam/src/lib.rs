@@ -39,7 +39,7 @@ mod photo;
 mod relight;
 mod sampling;
 
-pub use brdf::{BrdfQuery, BrdfSample, NeuralBrdf};
+pub use brdf::{BrdfQuery, BrdfSample, GPU_MIN_QUERIES, NeuralBrdf};
 pub use error::{NamError, Result};
 pub use frame::ShadingFrame;
 pub use material::{NeuralMaterial, write_atomic};

@@ -123,7 +123,8 @@ impl NeuralModel {
         Ok(())
     }
 
-    /// Runs estimation and image relighting on the caller's wgpu device from now on.
+    /// Runs estimation, image relighting and large [`NeuralBrdf::eval`](crate::NeuralBrdf::eval)
+    /// batches on the caller's wgpu device from now on.
     /// Weights are uploaded once here; pipelines are built lazily on first use.
     /// `adapter_type` (`adapter.get_info().device_type`) selects kernel variants. Request
     /// `Features::SHADER_F16` for `Precision::F16`, and on CPU adapters (lavapipe)

@@ -407,3 +407,60 @@ fn gpu_relight_matches_the_cpu_for_directional_point_and_mixed_scenes() {
         }
     }
 }
+
+#[cfg(feature = "gpu")]
+#[test]
+fn large_eval_batches_run_on_an_attached_gpu_with_the_cpu_values() {
+    let Some(gpu) = nam::nam_gpu::request_device(false) else {
+        eprintln!("SKIP: no wgpu adapter");
+        return;
+    };
+    let cpu = tiny();
+    let m = grey_material(&cpu, 9);
+    let mut model = tiny();
+    model
+        .attach_gpu(
+            &gpu.device,
+            &gpu.queue,
+            gpu.info.device_type,
+            nam::nam_gpu::Precision::F32,
+        )
+        .expect("attach");
+    // Deterministic queries over the hemisphere, every 17th one below the horizon.
+    let n = nam::GPU_MIN_QUERIES + 123;
+    let queries: Vec<BrdfQuery> = (0..n)
+        .map(|k| {
+            let t = k as f32 * 0.37;
+            let below = if k % 17 == 0 { -1.0 } else { 1.0 };
+            BrdfQuery {
+                uv: Vec2::new((k % 13) as f32 / 13.0, (k % 7) as f32 / 7.0),
+                wi: Vec3::new(
+                    0.6 * t.sin(),
+                    0.5 * t.cos(),
+                    below * (0.3 + (t * 0.5).cos().abs()),
+                ),
+                wo: Vec3::new(-0.4 * (t * 1.3).cos(), 0.3 * (t * 0.7).sin(), 1.0),
+            }
+        })
+        .collect();
+    let want = NeuralBrdf::new(&cpu, &m)
+        .expect("bind")
+        .eval(&queries)
+        .expect("cpu");
+    let on_gpu = NeuralBrdf::new(&model, &m).expect("bind");
+    let got = on_gpu.eval(&queries).expect("gpu");
+    let err = got
+        .iter()
+        .zip(&want)
+        .map(|(g, w)| ((*g - *w).abs() / (1.0 + w.abs())).max_element())
+        .fold(0.0f32, f32::max);
+    eprintln!("GPU vs CPU eval over {n} queries: max relative difference {err:.2e}");
+    assert!(err <= GPU_TOL, "GPU vs CPU eval: {err} > {GPU_TOL}");
+    assert!(want.iter().any(|v| v.max_element() > 0.0));
+    for k in (0..n).step_by(17) {
+        assert_eq!(got[k], Vec3::ZERO, "query {k} is below the horizon");
+    }
+    // A small batch stays on the CPU: bit-identical.
+    let small = &queries[..100];
+    assert_eq!(on_gpu.eval(small).expect("small"), want[..100].to_vec());
+}
