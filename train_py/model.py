@@ -289,8 +289,29 @@ class NDEnc(nn.Module):
         return self.l2(x)
 
 
+class _LeakyStraightThrough(torch.autograd.Function):
+    """``leaky_relu(z, slope)`` forward, identity backward (training only, see ``RenderMLP``)."""
+
+    @staticmethod
+    def forward(ctx, z: torch.Tensor, slope: float) -> torch.Tensor:
+        return F.leaky_relu(z, slope)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        return grad, None
+
+
 class RenderMLP(nn.Module):
-    """Render MLP on ``cat([params(64), nd(32)])`` → log radiance (3); l0 has no activation."""
+    """Render MLP on ``cat([params(64), nd(32)])`` → log radiance (3); l0 has no activation.
+
+    ``straight_through=True`` (training) keeps the forward value but passes the gradient of the
+    final LeakyReLU(0.001) through unscaled. With the true 0.001 slope a negative output gets a
+    1000× smaller gradient, and since most Reflect exemplar pixels are dark (target ≈ 0) every
+    output goes negative within a few steps and then barely trains ("dead" output: the model
+    predicts ≈ 0 / a direction-only average and ignores the params). For targets ≥ 0 (log radiance
+    always is) the straight-through gradient is exactly the gradient of ``|z - t|``, an upper bound
+    of the true loss ``|leaky(z) - t|``; inference is unchanged.
+    """
 
     def __init__(self):
         super().__init__()
@@ -299,11 +320,14 @@ class RenderMLP(nn.Module):
             setattr(self, f"l{i}", nn.Linear(dims[i], dims[i + 1], bias=False))
         init_linear(*(getattr(self, f"l{i}") for i in range(len(dims) - 1)))
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, straight_through: bool = False) -> torch.Tensor:
         x = self.l0(x)
         for i in range(1, 6):
             x = F.leaky_relu(getattr(self, f"l{i}")(x), RENDER_HIDDEN_SLOPE)
-        return F.leaky_relu(self.l6(x), RENDER_OUT_SLOPE)
+        z = self.l6(x)
+        if straight_through:
+            return _LeakyStraightThrough.apply(z, RENDER_OUT_SLOPE)
+        return F.leaky_relu(z, RENDER_OUT_SLOPE)
 
 
 def init_linear(*layers: nn.Linear) -> None:
@@ -334,10 +358,12 @@ class NamModel(nn.Module):
         """``[B, 4, H, W]`` network input → params ``[B, 64, H, W]``."""
         return self.est(net_input)
 
-    def render_log(self, params: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
-        """Per-query log radiance: params ``[N, 64]``, dirs ``[N, 9]`` → ``[N, 3]``."""
+    def render_log(self, params: torch.Tensor, dirs: torch.Tensor, straight_through: bool = False) -> torch.Tensor:
+        """Per-query log radiance: params ``[N, 64]``, dirs ``[N, 9]`` → ``[N, 3]``.
+
+        ``straight_through``: training gradient of the final activation, see ``RenderMLP``."""
         nd = self.nd_enc(positional_encoding(dirs))
-        return self.render(torch.cat([params, nd], dim=-1))
+        return self.render(torch.cat([params, nd], dim=-1), straight_through)
 
     def relight_log(self, params: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor, chunk: int = 16384) -> torch.Tensor:
         """Whole-image relight: params ``[B, 64, H, W]``, wi/wo ``[B, H, W, 3]`` → log ``[B, H, W, 3]``."""

@@ -57,6 +57,19 @@ def hemisphere(gen: torch.Generator, batch: int, k: int, dtype=torch.float32) ->
     return light, view
 
 
+def mix_identity(
+    gen: torch.Generator, light: torch.Tensor, view: torch.Tensor, frac: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Replaces each exemplar ``[B, K]`` by the Identity (capture) light and view with probability
+    ``frac``. Reflect targets are mostly dark, so a short run learns the input photo's colour only
+    slowly; a share of capture-geometry exemplars teaches it directly (opt-in, not in the paper)."""
+    if frac <= 0:
+        return light, view
+    cam = torch.tensor([0.0, 0.0, CAPTURE_DISTANCE], dtype=light.dtype).expand_as(light)
+    mask = torch.rand(*light.shape[:2], 1, generator=gen) < frac
+    return torch.where(mask, cam, light), torch.where(mask, cam, view)
+
+
 PROTOCOLS = ("reflect", "identity", "hemisphere")
 
 

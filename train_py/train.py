@@ -70,9 +70,12 @@ def exemplar_targets(maps, light, view, idx):
 class TrainStep(nn.Module):
     """Forward of one training step (so DDP sees a single ``forward``): input → sampled log radiance."""
 
-    def __init__(self, model: NamModel):
+    def __init__(self, model: NamModel, straight_through: bool = True):
         super().__init__()
         self.model = model
+        #: Unscaled gradient through the final LeakyReLU(0.001) (see model.RenderMLP); without it
+        #: the output dies within a few steps. ``False`` only for before/after experiments.
+        self.straight_through = straight_through
 
     def forward(self, net_input, k, frac, sel_gen, maps, light, view):
         params = self.model.estimate(net_input)
@@ -81,7 +84,7 @@ class TrainStep(nn.Module):
         b = params.shape[0]
         flat = params.permute(0, 2, 3, 1).reshape(b, -1, PARAM_CHANNELS)
         p = gather_rows(flat, idx)
-        pred = self.model.render_log(p.reshape(-1, PARAM_CHANNELS), dirs.reshape(-1, 9))
+        pred = self.model.render_log(p.reshape(-1, PARAM_CHANNELS), dirs.reshape(-1, 9), self.straight_through)
         return pred.reshape(target.shape), target
 
 
@@ -134,6 +137,17 @@ def parse_args(argv=None):
     ap.add_argument("--val-materials", type=int, default=6)
     ap.add_argument("--log-every", type=int, default=10)
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast for the matmuls")
+    ap.add_argument(
+        "--identity-frac",
+        type=float,
+        default=0.0,
+        help="share of exemplars rendered at the capture light/view instead of Reflect (0: paper)",
+    )
+    ap.add_argument(
+        "--no-straight-through",
+        action="store_true",
+        help="true LeakyReLU(0.001) gradient at the output (dies early; for comparisons only)",
+    )
     return ap.parse_args(argv)
 
 
@@ -164,7 +178,7 @@ def train(args) -> dict:
         state = {k: ckpt[k] for k in state if k in ckpt}
         if rank == 0:
             print(f"resumed {ckpt_path} at step {state['step']} ({state['elapsed'] / 60:.1f} min)", flush=True)
-    step_module: nn.Module = TrainStep(model)
+    step_module: nn.Module = TrainStep(model, straight_through=not args.no_straight_through)
     if distributed:
         step_module = nn.parallel.DistributedDataParallel(step_module)
 
@@ -201,6 +215,7 @@ def train(args) -> dict:
             outputs = max(1, round(args.outputs * (args.size / size) ** 2))
         maps, net_input = make_batch(seeds, size, device)
         light, view = protocols.reflect(data_gen, args.batch, outputs)
+        light, view = protocols.mix_identity(data_gen, light, view, args.identity_frac)
         model.train()
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.bf16):
             pred, target = step_module(
