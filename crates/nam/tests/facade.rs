@@ -351,15 +351,14 @@ fn coordinates_beyond_f32_are_errors_and_tiny_directions_still_evaluate() {
 #[cfg(feature = "gpu")]
 const GPU_TOL: f32 = 2e-2;
 
+/// The tiny model with the default adapter attached (f32); `None`, with a printed reason,
+/// when there is no adapter. The model keeps its own handles to the device.
 #[cfg(feature = "gpu")]
-#[test]
-fn gpu_relight_matches_the_cpu_for_directional_point_and_mixed_scenes() {
+fn tiny_on_gpu() -> Option<NeuralModel> {
     let Some(gpu) = nam::nam_gpu::request_device(false) else {
         eprintln!("SKIP: no wgpu adapter");
-        return;
+        return None;
     };
-    let cpu = tiny();
-    let m = grey_material(&cpu, 11);
     let mut model = tiny();
     model
         .attach_gpu(
@@ -369,6 +368,15 @@ fn gpu_relight_matches_the_cpu_for_directional_point_and_mixed_scenes() {
             nam::nam_gpu::Precision::F32,
         )
         .expect("attach");
+    Some(model)
+}
+
+#[cfg(feature = "gpu")]
+#[test]
+fn gpu_relight_matches_the_cpu_for_directional_point_and_mixed_scenes() {
+    let Some(model) = tiny_on_gpu() else { return };
+    let cpu = tiny();
+    let m = grey_material(&cpu, 11);
     let scenes = [
         Scene::new(
             Light::Directional(point(0.4, -0.3, 0.87)),
@@ -411,21 +419,9 @@ fn gpu_relight_matches_the_cpu_for_directional_point_and_mixed_scenes() {
 #[cfg(feature = "gpu")]
 #[test]
 fn large_eval_batches_run_on_an_attached_gpu_with_the_cpu_values() {
-    let Some(gpu) = nam::nam_gpu::request_device(false) else {
-        eprintln!("SKIP: no wgpu adapter");
-        return;
-    };
+    let Some(model) = tiny_on_gpu() else { return };
     let cpu = tiny();
     let m = grey_material(&cpu, 9);
-    let mut model = tiny();
-    model
-        .attach_gpu(
-            &gpu.device,
-            &gpu.queue,
-            gpu.info.device_type,
-            nam::nam_gpu::Precision::F32,
-        )
-        .expect("attach");
     // Deterministic queries over the hemisphere, every 17th one below the horizon.
     let n = nam::GPU_MIN_QUERIES + 123;
     let queries: Vec<BrdfQuery> = (0..n)
