@@ -26,6 +26,14 @@ const ROWS: [&str; 11] = [
     "prepared query batch",
 ];
 
+/// The cells of the Markdown table rows in `text` (header and separator left out).
+fn table_rows(text: &str) -> Vec<Vec<&str>> {
+    text.lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| path"))
+        .map(|l| l.trim_matches('|').split('|').map(str::trim).collect())
+        .collect()
+}
+
 #[test]
 fn bench_prints_one_measured_row_per_path() {
     let o = run(&["bench", "--size", "32", "--repeat", "1"]);
@@ -36,11 +44,7 @@ fn bench_prints_one_measured_row_per_path() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(stdout.contains("2 threads"), "{stdout}");
-    let rows: Vec<Vec<&str>> = stdout
-        .lines()
-        .filter(|l| l.starts_with("| ") && !l.starts_with("| path"))
-        .map(|l| l.trim_matches('|').split('|').map(str::trim).collect())
-        .collect();
+    let rows = table_rows(&stdout);
     assert_eq!(rows.len(), ROWS.len(), "{stdout}");
     for (row, want) in rows.iter().zip(ROWS) {
         assert_eq!(row.len(), 6, "{row:?}");
@@ -119,11 +123,7 @@ fn bench_gpu_times_both_plans_on_the_adapter_and_the_cpu() {
         .split("\nGPU: ")
         .nth(1)
         .unwrap_or_else(|| panic!("no GPU table:\n{stdout}"));
-    let rows: Vec<Vec<&str>> = gpu_table
-        .lines()
-        .filter(|l| l.starts_with("| ") && !l.starts_with("| path"))
-        .map(|l| l.trim_matches('|').split('|').map(str::trim).collect())
-        .collect();
+    let rows = table_rows(gpu_table);
     assert_eq!(rows.len(), GPU_ROWS.len(), "{gpu_table}");
     for (row, want) in rows.iter().zip(GPU_ROWS) {
         assert_eq!(row[0], want, "{row:?}");
