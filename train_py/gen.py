@@ -72,7 +72,9 @@ def value_noise(rng: Rng, size: int, cells: int) -> torch.Tensor:
 
 
 def fbm(rng: Rng, size: int, cells: int, octaves: int = 5, gain: float = 0.5) -> torch.Tensor:
-    """Fractal sum of value noise, normalised to [0, 1]."""
+    """Fractal sum of value noise, normalised to [0, 1]. ``cells`` is capped at ``size`` so the
+    first octave always exists (an empty sum was 0/0 = NaN for small maps)."""
+    cells = min(cells, size)
     total = torch.zeros(size, size)
     amp, norm = 1.0, 0.0
     for o in range(octaves):

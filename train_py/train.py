@@ -28,7 +28,7 @@ from torch import nn
 
 from . import gen, ggx, protocols
 from .evaluate import evaluate_protocols
-from .model import CONFIGS, PARAM_CHANNELS, NamModel, query_dirs
+from .model import CONFIGS, PARAM_CHANNELS, NamModel, positional_encoding, query_dirs
 
 #: Guards the inverse param-norm sampling weights against an all-zero parameter vector.
 NORM_EPS = 1e-6
@@ -43,6 +43,13 @@ def select_pixels(params: torch.Tensor, k: int, frac: float, generator: torch.Ge
         rows = weights.repeat_interleave(k, dim=0)
         idx = torch.multinomial(rows.cpu(), n, replacement=False, generator=generator).to(params.device)
     return idx.reshape(b, k, n)
+
+
+def select_shared_pixels(b: int, hw: int, k: int, frac: float, generator: torch.Generator | None, device):
+    """Pixel indices ``[B, K, n]``, uniform without replacement, the same for every material."""
+    n = max(1, round(frac * hw))
+    idx = torch.rand(k, hw, generator=generator).argsort(dim=1)[:, :n].to(device)
+    return idx.unsqueeze(0).expand(b, k, n)
 
 
 def gather_rows(x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
@@ -70,21 +77,33 @@ def exemplar_targets(maps, light, view, idx):
 class TrainStep(nn.Module):
     """Forward of one training step (so DDP sees a single ``forward``): input → sampled log radiance."""
 
-    def __init__(self, model: NamModel, straight_through: bool = True):
+    def __init__(self, model: NamModel, straight_through: bool = True, shared_geometry: bool = False):
         super().__init__()
         self.model = model
         #: Unscaled gradient through the final LeakyReLU(0.001) (see model.RenderMLP); without it
         #: the output dies within a few steps. ``False`` only for before/after experiments.
         self.straight_through = straight_through
+        #: Every material of the step shares the exemplar light/view ``[1, K, 3]`` and the (uniform)
+        #: pixel subset, so ND_enc — 86% of the per-query multiply-adds — runs once per exemplar
+        #: pixel instead of once per material.
+        self.shared_geometry = shared_geometry
 
     def forward(self, net_input, k, frac, sel_gen, maps, light, view):
         params = self.model.estimate(net_input)
-        idx = select_pixels(params, k, frac, sel_gen)
+        b, _, h, w = params.shape
+        if self.shared_geometry:
+            idx = select_shared_pixels(b, h * w, k, frac, sel_gen, params.device)
+            light, view = light.expand(b, k, 3), view.expand(b, k, 3)
+        else:
+            idx = select_pixels(params, k, frac, sel_gen)
         target, dirs = exemplar_targets(maps, light, view, idx)
-        b = params.shape[0]
-        flat = params.permute(0, 2, 3, 1).reshape(b, -1, PARAM_CHANNELS)
-        p = gather_rows(flat, idx)
-        pred = self.model.render_log(p.reshape(-1, PARAM_CHANNELS), dirs.reshape(-1, 9), self.straight_through)
+        p = gather_rows(params.permute(0, 2, 3, 1).reshape(b, -1, PARAM_CHANNELS), idx)
+        if self.shared_geometry:
+            nd = self.model.nd_enc(positional_encoding(dirs[0]))
+            x = torch.cat([p, nd.expand(b, *nd.shape)], dim=-1)
+            pred = self.model.render(x.reshape(-1, x.shape[-1]), self.straight_through)
+        else:
+            pred = self.model.render_log(p.reshape(-1, PARAM_CHANNELS), dirs.reshape(-1, 9), self.straight_through)
         return pred.reshape(target.shape), target
 
 
@@ -144,6 +163,13 @@ def parse_args(argv=None):
         help="share of exemplars rendered at the capture light/view instead of Reflect (0: paper)",
     )
     ap.add_argument(
+        "--shared-geometry",
+        action="store_true",
+        help="the materials of a step share exemplar light/view and a uniform pixel subset; ND_enc "
+        "runs once per exemplar pixel (~3x faster steps on CPU; drops the param-norm pixel weighting)",
+    )
+    ap.add_argument("--init-from", default=None, help="checkpoint whose weights start the run (fresh schedule)")
+    ap.add_argument(
         "--no-straight-through",
         action="store_true",
         help="true LeakyReLU(0.001) gradient at the output (dies early; for comparisons only)",
@@ -178,7 +204,13 @@ def train(args) -> dict:
         state = {k: ckpt[k] for k in state if k in ckpt}
         if rank == 0:
             print(f"resumed {ckpt_path} at step {state['step']} ({state['elapsed'] / 60:.1f} min)", flush=True)
-    step_module: nn.Module = TrainStep(model, straight_through=not args.no_straight_through)
+    elif args.init_from:
+        model.load_state_dict(torch.load(args.init_from, map_location=device, weights_only=False)["model"])
+        if rank == 0:
+            print(f"initialised from {args.init_from}", flush=True)
+    step_module: nn.Module = TrainStep(
+        model, straight_through=not args.no_straight_through, shared_geometry=args.shared_geometry
+    )
     if distributed:
         step_module = nn.parallel.DistributedDataParallel(step_module)
 
@@ -214,7 +246,7 @@ def train(args) -> dict:
             size = sizes[int(torch.randint(0, len(sizes), (), generator=data_gen))]
             outputs = max(1, round(args.outputs * (args.size / size) ** 2))
         maps, net_input = make_batch(seeds, size, device)
-        light, view = protocols.reflect(data_gen, args.batch, outputs)
+        light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)
         light, view = protocols.mix_identity(data_gen, light, view, args.identity_frac)
         model.train()
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.bf16):

@@ -9,7 +9,7 @@ import torch
 from train_py import ggx, protocols
 from train_py.evaluate import evaluate_protocols, ssim
 from train_py.model import CONFIGS, NamModel
-from train_py.train import TrainStep, make_batch, select_pixels
+from train_py.train import TrainStep, exemplar_targets, gather_rows, make_batch, select_pixels, select_shared_pixels
 
 from .conftest import REPO
 
@@ -168,3 +168,24 @@ def test_mix_identity_replaces_the_chosen_share_of_exemplars_by_the_capture_geom
     assert 0.2 < float(is_cam.float().mean()) < 0.3
     kept = ~is_cam
     assert torch.equal(mixed_l[kept], light[kept]) and torch.equal(mixed_v[kept], view[kept])
+
+
+def test_shared_geometry_step_is_the_per_material_step_with_one_nd_enc_per_exemplar_pixel():
+    torch.manual_seed(0)
+    model = NamModel(CONFIGS["tiny"])
+    maps, net_input = make_batch([21, 22, 23], 16, "cpu")
+    light, view = protocols.reflect(torch.Generator().manual_seed(4), 1, 3)
+    pred, target = TrainStep(model, shared_geometry=True)(
+        net_input, 3, 0.5, torch.Generator().manual_seed(9), maps, light, view
+    )
+    idx = select_shared_pixels(3, 16 * 16, 3, 0.5, torch.Generator().manual_seed(9), "cpu")
+    assert idx.shape == (3, 3, 128) and torch.equal(idx[0], idx[2])
+    assert all(len(set(row.tolist())) == 128 for row in idx[0])
+    # The same rows through the per-material path (ND_enc evaluated for every material).
+    lv = light.expand(3, 3, 3), view.expand(3, 3, 3)
+    want_target, dirs = exemplar_targets(maps, *lv, idx)
+    params = model.estimate(net_input).permute(0, 2, 3, 1).reshape(3, -1, 64)
+    want = model.render_log(gather_rows(params, idx).reshape(-1, 64), dirs.reshape(-1, 9), True)
+    torch.testing.assert_close(target, want_target, rtol=0, atol=0)
+    torch.testing.assert_close(pred, want.reshape(pred.shape), rtol=1e-5, atol=1e-6)
+    assert not torch.equal(pred[0], pred[1])  # different materials, different radiance
