@@ -436,3 +436,30 @@ fn alpha_channel_is_ignored_with_a_note() {
     assert!(err.contains("alpha channel; it is ignored"), "{err}");
     assert!(out.exists());
 }
+
+#[test]
+fn over_exposed_photo_gets_a_note_and_a_normal_one_does_not() {
+    let dir = tmp();
+    let dark = small_photo(dir.path(), 12);
+    let white = dir.path().join("white.png");
+    image::RgbImage::from_pixel(12, 12, image::Rgb([255, 255, 255]))
+        .save(&white)
+        .unwrap_or_else(|e| panic!("{e}"));
+    for (photo, noted) in [(&white, true), (&dark, false)] {
+        let out = dir.path().join("o.png");
+        let o = run(&[
+            "relight",
+            s(photo),
+            "--light",
+            "1,1,3",
+            "-o",
+            s(&out),
+            "--backend",
+            "cpu",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        assert_eq!(err.contains("100.0% of the pixels"), noted, "{err}");
+        assert_eq!(err.contains("saturated"), noted, "{err}");
+    }
+}

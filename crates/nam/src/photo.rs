@@ -86,6 +86,18 @@ impl Photo {
         &self.rgb
     }
 
+    /// Fraction of pixels (0..=1) with some channel at or above `level` (linear). At
+    /// [`nam_model::input::LDR_CLAMP`] these are the pixels an LDR model sees as pure white:
+    /// the blown-out highlight of an over-exposed photo, where the material is not visible.
+    pub fn saturated_fraction(&self, level: f32) -> f64 {
+        let n = self
+            .rgb
+            .chunks_exact(3)
+            .filter(|px| px.iter().any(|&v| v >= level))
+            .count();
+        n as f64 / (self.side * self.side) as f64
+    }
+
     /// Resamples to `side`×`side` with a triangle (bilinear) filter on downscale and
     /// Catmull-Rom on upscale
     /// (in linear space, so highlights keep their energy).
@@ -170,6 +182,18 @@ mod tests {
         let err =
             Photo::from_linear_rgb(MAX_PHOTO_SIDE + 1, MAX_PHOTO_SIDE + 1, Vec::new()).unwrap_err();
         assert!(err.to_string().contains("largest supported side"), "{err}");
+    }
+
+    #[test]
+    fn saturated_fraction_counts_pixels_with_any_channel_at_the_level() {
+        let p = Photo::from_linear_rgb(
+            2,
+            2,
+            vec![1.0, 0.2, 0.2, 0.5, 0.5, 0.5, 0.1, 3.0, 0.1, 0.999, 0.0, 0.0],
+        )
+        .expect("valid");
+        assert_eq!(p.saturated_fraction(nam_model::input::LDR_CLAMP), 0.5);
+        assert_eq!(p.saturated_fraction(10.0), 0.0);
     }
 
     #[test]
