@@ -34,6 +34,21 @@ from .model import CONFIGS, PARAM_CHANNELS, NamModel, positional_encoding, query
 NORM_EPS = 1e-6
 
 
+#: Offset of the display-space term: keeps the gradient of ``x^(1/2.2)`` finite at black.
+DISPLAY_EPS = 1e-3
+
+
+def display_l1(pred_log: torch.Tensor, target_log: torch.Tensor) -> torch.Tensor:
+    """L1 between ``(clamp(R, 0, 1) + ε)^(1/2.2)`` of prediction and target: the error as a display
+    shows it. Log-L1 ≈ linear L1 for dark radiance, so a dark material's colour costs it almost
+    nothing; in display space the same error is ~20× larger. An offline stand-in for the paper's
+    perceptual term (LPIPS weights are not reachable here)."""
+    pred = torch.expm1(pred_log.clamp(min=0)).clamp(max=1)
+    target = torch.expm1(target_log).clamp(0, 1)
+    gamma = 1 / 2.2
+    return ((pred + DISPLAY_EPS) ** gamma - (target + DISPLAY_EPS) ** gamma).abs().mean()
+
+
 def select_pixels(params: torch.Tensor, k: int, frac: float, generator: torch.Generator | None) -> torch.Tensor:
     """Pixel indices ``[B, K, n]`` drawn without replacement ∝ 1/‖params‖ (paper masking method 1)."""
     b, _, h, w = params.shape
@@ -168,6 +183,12 @@ def parse_args(argv=None):
         help="the materials of a step share exemplar light/view and a uniform pixel subset; ND_enc "
         "runs once per exemplar pixel (~3x faster steps on CPU; drops the param-norm pixel weighting)",
     )
+    ap.add_argument(
+        "--display-weight",
+        type=float,
+        default=0.0,
+        help="weight of a display-space L1 term added to the log-L1 loss (0: log-L1 only, as before)",
+    )
     ap.add_argument("--init-from", default=None, help="checkpoint whose weights start the run (fresh schedule)")
     ap.add_argument(
         "--no-straight-through",
@@ -254,6 +275,8 @@ def train(args) -> dict:
                 net_input, outputs, args.pixel_frac, data_gen, maps, light.to(device), view.to(device)
             )
         loss = (pred.float() - target).abs().mean()
+        if args.display_weight:
+            loss = loss + args.display_weight * display_l1(pred.float(), target)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -9,7 +9,15 @@ import torch
 from train_py import ggx, protocols
 from train_py.evaluate import evaluate_protocols, ssim
 from train_py.model import CONFIGS, NamModel
-from train_py.train import TrainStep, exemplar_targets, gather_rows, make_batch, select_pixels, select_shared_pixels
+from train_py.train import (
+    TrainStep,
+    display_l1,
+    exemplar_targets,
+    gather_rows,
+    make_batch,
+    select_pixels,
+    select_shared_pixels,
+)
 
 from .conftest import REPO
 
@@ -189,3 +197,18 @@ def test_shared_geometry_step_is_the_per_material_step_with_one_nd_enc_per_exemp
     torch.testing.assert_close(target, want_target, rtol=0, atol=0)
     torch.testing.assert_close(pred, want.reshape(pred.shape), rtol=1e-5, atol=1e-6)
     assert not torch.equal(pred[0], pred[1])  # different materials, different radiance
+
+
+def test_display_term_weighs_dark_colour_errors_and_ignores_what_a_display_clips():
+    log = torch.log1p
+    same = log(torch.tensor([[0.3, 0.01, 0.0]]))
+    assert float(display_l1(same, same)) == 0.0
+    # A dark red rendered grey: small in log space, ~3x larger on a display.
+    target, grey = log(torch.tensor([[0.05, 0.02, 0.01]])), log(torch.tensor([[0.02, 0.02, 0.02]]))
+    assert float(display_l1(grey, target)) > 3 * float((grey - target).abs().mean())
+    # Both above display white: no display error (the log term still sees it).
+    assert float(display_l1(log(torch.tensor([[5.0] * 3])), log(torch.tensor([[10.0] * 3])))) == 0.0
+    black = torch.full((1, 3), 1e-7, requires_grad=True)  # near black
+    display_l1(black, log(torch.tensor([[0.01] * 3]))).backward()
+    # Bounded by the ε offset (without it d/dx x^(1/2.2) at 1e-7 is ~3e3).
+    assert (black.grad < 0).all() and float(black.grad.abs().max()) < 10
