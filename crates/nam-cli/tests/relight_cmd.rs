@@ -412,6 +412,23 @@ fn resize_sets_the_material_size_and_is_refused_for_materials() {
     );
 }
 
+/// Relights `photo` on the CPU (must succeed) and returns what was printed to stderr.
+fn relight_notes(photo: &Path, out: &Path) -> String {
+    let o = run(&[
+        "relight",
+        s(photo),
+        "--light",
+        "1,1,3",
+        "-o",
+        s(out),
+        "--backend",
+        "cpu",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{err}");
+    err
+}
+
 #[test]
 fn alpha_channel_is_ignored_with_a_note() {
     let dir = tmp();
@@ -421,18 +438,7 @@ fn alpha_channel_is_ignored_with_a_note() {
     let photo = dir.path().join("rgba.png");
     rgb.save(&photo).unwrap_or_else(|e| panic!("{e}"));
     let out = dir.path().join("o.png");
-    let o = run(&[
-        "relight",
-        s(&photo),
-        "--light",
-        "1,1,3",
-        "-o",
-        s(&out),
-        "--backend",
-        "cpu",
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{err}");
+    let err = relight_notes(&photo, &out);
     assert!(err.contains("alpha channel; it is ignored"), "{err}");
     assert!(out.exists());
 }
@@ -447,18 +453,7 @@ fn over_exposed_photo_gets_a_note_and_a_normal_one_does_not() {
         .unwrap_or_else(|e| panic!("{e}"));
     for (photo, noted) in [(&white, true), (&dark, false)] {
         let out = dir.path().join("o.png");
-        let o = run(&[
-            "relight",
-            s(photo),
-            "--light",
-            "1,1,3",
-            "-o",
-            s(&out),
-            "--backend",
-            "cpu",
-        ]);
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(o.status.success(), "{err}");
+        let err = relight_notes(photo, &out);
         assert_eq!(err.contains("100.0% of the pixels"), noted, "{err}");
         assert_eq!(err.contains("saturated"), noted, "{err}");
     }
