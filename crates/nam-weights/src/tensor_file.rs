@@ -228,29 +228,39 @@ impl TensorFile {
 
     /// Returns the data of `name`, checking that its shape is exactly `shape`.
     pub fn get(&self, name: &str, shape: &[usize]) -> Result<&[f32]> {
-        let t = self
-            .tensors
-            .get(name)
-            .ok_or_else(|| WeightsError::MissingTensor {
-                file: self.label.clone(),
-                tensor: name.to_string(),
-                expected: shape.to_vec(),
-            })?;
-        if t.shape != shape {
-            return Err(WeightsError::ShapeMismatch {
-                file: self.label.clone(),
-                tensor: name.to_string(),
-                expected: shape.to_vec(),
-                found: t.shape.clone(),
-            });
-        }
-        Ok(&t.data)
+        get_checked(&self.tensors, &self.label, name, shape)
     }
 
     /// Splits into metadata and tensors.
     pub fn into_parts(self) -> (BTreeMap<String, String>, BTreeMap<String, Tensor>) {
         (self.metadata, self.tensors)
     }
+}
+
+/// The data of `name` in `tensors`, checking that its shape is exactly `shape`; `label` names
+/// the file in errors.
+pub(crate) fn get_checked<'a>(
+    tensors: &'a BTreeMap<String, Tensor>,
+    label: &str,
+    name: &str,
+    shape: &[usize],
+) -> Result<&'a [f32]> {
+    let t = tensors
+        .get(name)
+        .ok_or_else(|| WeightsError::MissingTensor {
+            file: label.to_string(),
+            tensor: name.to_string(),
+            expected: shape.to_vec(),
+        })?;
+    if t.shape != shape {
+        return Err(WeightsError::ShapeMismatch {
+            file: label.to_string(),
+            tensor: name.to_string(),
+            expected: shape.to_vec(),
+            found: t.shape.clone(),
+        });
+    }
+    Ok(&t.data)
 }
 
 fn parse_entry(name: &str, value: &Value, label: &str) -> Result<Entry> {

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use crate::config::ModelConfig;
 use crate::error::{Result, WeightsError};
-use crate::tensor_file::{Tensor, TensorFile, write_safetensors};
+use crate::tensor_file::{Tensor, TensorFile, get_checked, write_safetensors};
 
 /// The complete `name → shape` list of a model file, derived from its config
 /// (docs/FORMAT.md, "Tensor names"), in network order.
@@ -215,23 +215,7 @@ impl Weights {
 
     /// Row-major `f32` data of `name`, checking the shape is exactly `shape`.
     pub fn get(&self, name: &str, shape: &[usize]) -> Result<&[f32]> {
-        let t = self
-            .tensors
-            .get(name)
-            .ok_or_else(|| WeightsError::MissingTensor {
-                file: self.label.clone(),
-                tensor: name.to_string(),
-                expected: shape.to_vec(),
-            })?;
-        if t.shape() != shape {
-            return Err(WeightsError::ShapeMismatch {
-                file: self.label.clone(),
-                tensor: name.to_string(),
-                expected: shape.to_vec(),
-                found: t.shape().to_vec(),
-            });
-        }
-        Ok(t.data())
+        get_checked(&self.tensors, &self.label, name, shape)
     }
 
     /// A view that prefixes names with `prefix.` (e.g. `w.scope("est.enc1.0")`).

@@ -33,6 +33,7 @@
 mod brdf;
 mod error;
 mod frame;
+mod io;
 mod material;
 mod model;
 mod photo;
@@ -42,7 +43,8 @@ mod sampling;
 pub use brdf::{BrdfQuery, BrdfSample, GPU_MIN_QUERIES, NeuralBrdf};
 pub use error::{NamError, Result};
 pub use frame::ShadingFrame;
-pub use material::{NeuralMaterial, write_atomic};
+pub use io::write_atomic;
+pub use material::NeuralMaterial;
 #[cfg(feature = "default-model")]
 pub use model::EMBEDDED_MODEL;
 pub use model::{BackendKind, NeuralModel};

@@ -3,7 +3,6 @@
 use crate::error::{NamError, Result};
 use crate::model::NeuralModel;
 use nam_model::ParamMap;
-use std::io::Write;
 use std::path::Path;
 
 /// A neural material: one latent vector per pixel (`H×W×64`, HWC), estimated by one model.
@@ -87,61 +86,13 @@ impl NeuralMaterial {
     /// Reads a `.nam` file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|error| NamError::Io {
-            path: path.to_path_buf(),
-            error,
-        })?;
-        Self::from_bytes(&bytes, &path.display().to_string())
+        Self::from_bytes(&crate::io::read(path)?, &path.display().to_string())
     }
 
     /// Writes a `.nam` file atomically (a temporary file in the same folder, then rename), so
     /// an interrupted write never leaves a half-written file under `path`.
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
-        write_atomic(path.as_ref(), &self.to_bytes())
-    }
-}
-
-/// Writes `bytes` to `path` atomically: a uniquely named temporary file in the same folder is
-/// filled, flushed to disk and renamed over `path`; on any error it is removed, so `path` is
-/// either untouched or complete.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let io = |error| NamError::Io {
-        path: path.to_path_buf(),
-        error,
-    };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".nam-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(io)?;
-    tmp.write_all(bytes)
-        .and_then(|()| final_permissions(path, tmp.as_file()))
-        .and_then(|perm| tmp.as_file().set_permissions(perm))
-        .and_then(|()| tmp.as_file().sync_all())
-        .map_err(io)?;
-    tmp.persist(path).map_err(|e| io(e.error))?;
-    Ok(())
-}
-
-/// The permissions a replaced file keeps, or a new file's usual `rw-r--r--` on Unix
-/// (temporary files are created owner-only).
-fn final_permissions(path: &Path, tmp: &std::fs::File) -> std::io::Result<std::fs::Permissions> {
-    if let Ok(meta) = std::fs::metadata(path) {
-        return Ok(meta.permissions());
-    }
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        let _ = tmp;
-        Ok(std::fs::Permissions::from_mode(0o644))
-    }
-    #[cfg(not(unix))]
-    {
-        Ok(tmp.metadata()?.permissions())
+        crate::io::write_atomic(path.as_ref(), &self.to_bytes())
     }
 }
 

@@ -1,6 +1,6 @@
 //! [`NeuralModel`]: validated weights plus the networks on the CPU and, optionally, a GPU.
 
-use crate::error::{NamError, Result};
+use crate::error::Result;
 use crate::material::NeuralMaterial;
 use crate::photo::Photo;
 use nam_model::Model;
@@ -54,11 +54,7 @@ impl NeuralModel {
     /// Reads and validates a model file (`.safetensors`, docs/FORMAT.md).
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|error| NamError::Io {
-            path: path.to_path_buf(),
-            error,
-        })?;
-        Self::from_bytes(&bytes, &path.display().to_string())
+        Self::from_bytes(&crate::io::read(path)?, &path.display().to_string())
     }
 
     /// Parses and validates a model held in memory; `label` names it in errors.

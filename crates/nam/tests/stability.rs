@@ -5,6 +5,8 @@
 //! finite and ≥ 0, black exactly where the geometry says so, and invalid input must be an
 //! error that names the problem.
 
+mod common;
+
 use glam::{Vec2, Vec3};
 use nam::geometry::{Light, View};
 use nam::{
@@ -631,38 +633,6 @@ const RENDER_F32_VS_F64_TOL: f64 = 5e-4;
 /// (clipped white; real photos ≤ 5.5e-3).
 const END_TO_END_F32_VS_F64_TOL: f64 = 0.25;
 
-fn real_photos() -> Option<Vec<(String, Photo)>> {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/real_photos");
-    let Ok(entries) = std::fs::read_dir(&dir) else {
-        eprintln!(
-            "SKIP: no real photos at {} (shared/ is not beside the checkout)",
-            dir.display()
-        );
-        return None;
-    };
-    let mut paths: Vec<_> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "png"))
-        .collect();
-    paths.sort();
-    if paths.is_empty() {
-        eprintln!("SKIP: {} holds no PNG photos", dir.display());
-        return None;
-    }
-    Some(
-        paths
-            .into_iter()
-            .map(|p| {
-                let name = p
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_default();
-                (name, Photo::load(&p).unwrap_or_else(|e| panic!("{e}")))
-            })
-            .collect(),
-    )
-}
-
 /// The light/view pairs the render MLP is traced under (positions, surface frame).
 fn trace_scenes() -> [([f32; 3], [f32; 3]); 4] {
     let d = D as f32;
@@ -768,7 +738,7 @@ fn trace(photo: &Photo, pixel_step: usize) -> Traced {
 #[test]
 fn f16_has_headroom_over_every_activation_and_f32_matches_f64_on_real_photos() {
     use rayon::prelude::*;
-    let Some(photos) = real_photos() else {
+    let Some(photos) = common::real_photos() else {
         return;
     };
     let t0 = std::time::Instant::now();
@@ -868,7 +838,7 @@ fn f16_has_headroom_over_every_activation_and_f32_matches_f64_on_real_photos() {
 fn f16_has_headroom_over_the_render_mlp_at_full_resolution() {
     use nam_model::reference::{self, Accumulate, ActivationRanges};
     use rayon::prelude::*;
-    let Some(photos) = real_photos() else {
+    let Some(photos) = common::real_photos() else {
         return;
     };
     let t0 = std::time::Instant::now();
