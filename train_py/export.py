@@ -14,7 +14,7 @@ from safetensors import safe_open
 from safetensors.torch import save_file
 from torch import nn
 
-from .model import Conv, ConvBN, ModelConfig, NamModel
+from .model import NORM_EPS, Conv, ConvBN, ModelConfig, NamModel
 
 DTYPES = {"f32": torch.float32, "f16": torch.float16}
 F16_MAX = 65504.0
@@ -52,6 +52,45 @@ def fold_state_dict(model: NamModel) -> dict[str, torch.Tensor]:
     if set(out) != expected:
         raise RuntimeError(f"fold mismatch: missing {sorted(expected - set(out))}, extra {sorted(set(out) - expected)}")
     return out
+
+
+def unfold_model(path: str | Path) -> NamModel:
+    """A training (unfolded) model that computes exactly what the model file at ``path`` does
+    once its BatchNorms are in eval mode: every BN gets running mean 0, running variance
+    ``1 − eps`` (so it divides by exactly 1), weight 1 (or the folded ``scale``) and bias = the
+    folded ``bias``/``shift``. Fine-tuning keeps those BNs in eval mode (``freeze_batchnorm``):
+    batch statistics would renormalise what the folded weights already normalise."""
+    folded = load_model(path)
+    model = NamModel(folded.config, folded=False)
+    src = dict(folded.state_dict())
+    dst: dict[str, torch.Tensor] = {}
+    for name, mod in model.named_modules():
+        prefix = f"{name}." if name else ""
+        if isinstance(mod, ConvBN):
+            dst[prefix + "weight"] = src[prefix + "weight"]
+            bn, scale, shift = prefix + "bn.", torch.ones_like(src[prefix + "bias"]), src[prefix + "bias"]
+        elif isinstance(mod, nn.BatchNorm2d) and not name.endswith(".bn"):
+            bn, scale, shift = prefix, src[prefix + "scale"], src[prefix + "shift"]
+        else:
+            if isinstance(mod, (Conv, nn.Linear)):
+                dst[prefix + "weight"] = src[prefix + "weight"]
+            continue
+        dst[bn + "weight"] = scale
+        dst[bn + "bias"] = shift
+        dst[bn + "running_mean"] = torch.zeros_like(shift)
+        dst[bn + "running_var"] = torch.full_like(shift, 1.0 - NORM_EPS)
+        dst[bn + "num_batches_tracked"] = torch.tensor(0)
+    model.load_state_dict(dst, strict=True)
+    return freeze_batchnorm(model.eval())
+
+
+def freeze_batchnorm(model: NamModel) -> NamModel:
+    """Puts every BatchNorm of ``model`` in eval mode (running statistics, not updated); call
+    after each ``model.train()``. Their affine weights still train."""
+    for mod in model.modules():
+        if isinstance(mod, nn.BatchNorm2d):
+            mod.eval()
+    return model
 
 
 def save_model(

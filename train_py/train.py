@@ -10,7 +10,10 @@ material with Reflect sampling; 60% of the pixels of each exemplar drawn by inve
 Perceptual (LPIPS) and discriminator losses need pretrained / extra networks and are left out:
 only the data loss is used, as the paper's own ablations make it the primary term.
 Checkpoints (``ckpt.pt``) are written every ``--ckpt-minutes`` and at the end; ``--resume``
-continues from one. Under ``torchrun`` (``WORLD_SIZE`` set) it runs DDP.
+continues from one. ``--init-from`` starts a new schedule from a checkpoint's weights, or from a
+(BN-folded) model file such as ``models/default.safetensors``: then the BatchNorms stay in eval
+mode for the whole run (``export.unfold_model``), so a model can be fine-tuned across sessions.
+Under ``torchrun`` (``WORLD_SIZE`` set) it runs DDP.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from torch import nn
 
 from . import gen, ggx, protocols
 from .evaluate import evaluate_protocols
+from .export import freeze_batchnorm, unfold_model
 from .model import CONFIGS, PARAM_CHANNELS, NamModel, positional_encoding, query_dirs
 
 #: Guards the inverse param-norm sampling weights against an all-zero parameter vector.
@@ -189,7 +193,12 @@ def parse_args(argv=None):
         default=0.0,
         help="weight of a display-space L1 term added to the log-L1 loss (0: log-L1 only, as before)",
     )
-    ap.add_argument("--init-from", default=None, help="checkpoint whose weights start the run (fresh schedule)")
+    ap.add_argument(
+        "--init-from",
+        default=None,
+        help="checkpoint (.pt) or model file (.safetensors, BN folded: BNs then stay frozen) whose weights "
+        "start the run (fresh schedule)",
+    )
     ap.add_argument(
         "--no-straight-through",
         action="store_true",
@@ -217,7 +226,8 @@ def train(args) -> dict:
     torch.manual_seed(args.seed)
     model = NamModel(CONFIGS[args.config]).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
-    state = {"step": 0, "elapsed": 0.0, "loss": None, "history": []}
+    #: ``frozen_bn``: BatchNorms in eval mode throughout (a run started from a folded model file).
+    state = {"step": 0, "elapsed": 0.0, "loss": None, "history": [], "frozen_bn": False}
     if args.resume and ckpt_path.exists():
         ckpt = torch.load(ckpt_path, map_location=device, weights_only=False)
         model.load_state_dict(ckpt["model"])
@@ -225,6 +235,14 @@ def train(args) -> dict:
         state = {k: ckpt[k] for k in state if k in ckpt}
         if rank == 0:
             print(f"resumed {ckpt_path} at step {state['step']} ({state['elapsed'] / 60:.1f} min)", flush=True)
+    elif args.init_from and Path(args.init_from).suffix == ".safetensors":
+        init = unfold_model(args.init_from)
+        if init.config != model.config:
+            raise SystemExit(f"--init-from {args.init_from}: {init.config} does not match --config {args.config}")
+        model.load_state_dict(init.state_dict())
+        state["frozen_bn"] = True
+        if rank == 0:
+            print(f"initialised from {args.init_from} (BatchNorms frozen)", flush=True)
     elif args.init_from:
         model.load_state_dict(torch.load(args.init_from, map_location=device, weights_only=False)["model"])
         if rank == 0:
@@ -270,6 +288,8 @@ def train(args) -> dict:
         light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)
         light, view = protocols.mix_identity(data_gen, light, view, args.identity_frac)
         model.train()
+        if state["frozen_bn"]:
+            freeze_batchnorm(model)
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.bf16):
             pred, target = step_module(
                 net_input, outputs, args.pixel_frac, data_gen, maps, light.to(device), view.to(device)
@@ -311,7 +331,6 @@ def validate(model: NamModel, args) -> dict[str, float]:
     model.eval()
     seeds = [gen.HELD_OUT_SEED_BASE + 1000 + i for i in range(args.val_materials)]
     res = evaluate_protocols(model, seeds, args.size, hemisphere_k=8, reflect_k=4, device=args.device)
-    model.train()
     return {f"{p}_logl1": v["model"]["log_l1"] for p, v in res.items()}
 
 

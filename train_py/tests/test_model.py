@@ -9,7 +9,7 @@ from safetensors import safe_open
 from safetensors.torch import load_file
 
 from train_py import golden
-from train_py.export import fold_state_dict, load_model, read_config, save_model
+from train_py.export import fold_state_dict, load_model, read_config, save_model, unfold_model
 from train_py.model import ModelConfig, NamModel, positional_encoding
 
 from .conftest import FIXTURES
@@ -96,6 +96,23 @@ def test_folded_model_matches_training_model_in_eval_mode(tmp_path):
     p = torch.randn(40, 64)
     with torch.no_grad():
         torch.testing.assert_close(folded.render_log(p, dirs), m.render_log(p, dirs))
+
+
+def test_unfolded_model_file_computes_what_the_file_does_and_folds_back_to_it(tmp_path):
+    m = random_bn_model()
+    path = tmp_path / "m.safetensors"
+    save_model(fold_state_dict(m), m.config, path, "f32")
+    folded, unfolded = load_model(path), unfold_model(path)
+    bns = [mod for mod in unfolded.modules() if isinstance(mod, torch.nn.BatchNorm2d)]
+    assert bns and not any(bn.training for bn in bns)
+    x = torch.rand(1, 4, 19, 30)
+    with torch.no_grad():
+        ref, out = folded.estimate(x), unfolded.estimate(x)
+    assert ref.abs().max() > 0.1
+    torch.testing.assert_close(out, ref, rtol=0, atol=FOLD_ATOL)
+    refolded = fold_state_dict(unfolded)
+    for name, t in load_model(path).state_dict().items():
+        torch.testing.assert_close(refolded[name], t, rtol=1e-6, atol=1e-7)
 
 
 def test_f16_export_is_half_precision_and_close_to_f32(tmp_path):

@@ -212,3 +212,27 @@ def test_display_term_weighs_dark_colour_errors_and_ignores_what_a_display_clips
     display_l1(black, log(torch.tensor([[0.01] * 3]))).backward()
     # Bounded by the ε offset (without it d/dx x^(1/2.2) at 1e-7 is ~3e3).
     assert (black.grad < 0).all() and float(black.grad.abs().max()) < 10
+
+
+def test_training_from_a_model_file_keeps_its_batchnorms_frozen(tmp_path):
+    from train_py.export import fold_state_dict, save_model, unfold_model
+
+    init = tmp_path / "init.safetensors"
+    m = NamModel(CONFIGS["tiny"]).eval()
+    save_model(fold_state_dict(m), m.config, init, "f32")
+    cmd = [sys.executable, "-m", "train_py.train", "--config", "tiny", "--steps", "2", "--size", "32"]
+    cmd += ["--batch", "2", "--outputs", "2", "--val-every", "0", "--threads", "1", "--init-from", str(init)]
+    run = subprocess.run([*cmd, "--out", str(tmp_path / "run")], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert "BatchNorms frozen" in run.stdout
+    ckpt = torch.load(tmp_path / "run" / "ckpt.pt", weights_only=False)
+    assert ckpt["step"] == 2 and ckpt["frozen_bn"] is True
+    start = unfold_model(init).state_dict()
+    for name, t in ckpt["model"].items():
+        if name.endswith(("running_mean", "running_var")):
+            torch.testing.assert_close(t, start[name], rtol=0, atol=0)
+    assert any(not torch.equal(t, start[n]) for n, t in ckpt["model"].items() if n.endswith("weight"))
+    wrong = subprocess.run(
+        [*cmd[:4], "small", *cmd[5:], "--out", str(tmp_path / "wrong")], cwd=REPO, capture_output=True, text=True
+    )
+    assert wrong.returncode != 0 and "does not match --config small" in wrong.stderr
