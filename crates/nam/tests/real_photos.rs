@@ -1,0 +1,193 @@
+//! The embedded model on the real flash photos of `../shared/real_photos` (256², LDR, taken by
+//! no one here), measured per photo on its well-exposed pixels (no channel ≥ [`SATURATED`], not
+//! black):
+//! - *Identity* (relit under the capture's own light and view, DESIGN §7): log-L1 against the
+//!   photo, chromaticity error, and colourfulness relit / in the photo.
+//! - *Moving light*: how much brighter the right half gets, relative to the left, when a light
+//!   at (−2, 0, 3) moves to (2, 0, 3).
+//!
+//! Two kinds of checks: what any plausible relight must do ([`IDENTITY_LOG_L1_MAX`],
+//! [`SIDE_LIGHT_RATIO_MIN`]), and the shipped model's measured values per photo ([`MEASURED`],
+//! within [`ABS_TOL`] / [`REL_TOL`]), so that a change in the runtime or the weights that moves
+//! any of them shows up. The shipped model does *not* keep the photos' colour (colourfulness
+//! ratio ≈ 0.1 for most photos: it relights them nearly grey); [`MEASURED`] records that
+//! honestly, it is not a target.
+
+mod common;
+
+use nam::geometry::{Light, View, capture_position};
+use nam::{NeuralModel, Photo, RgbImage, Scene, Vec3d, relight};
+use rayon::prelude::*;
+
+/// A photo pixel with any channel at or above this (8-bit 250) is blown out: what the material
+/// does there is not in the photo, so it is not compared.
+const SATURATED: f32 = 0.955;
+/// A photo pixel whose channels sum below this is too dark for a colour to be measured.
+const DARK: f32 = 0.03;
+/// Offset of the log comparison, `|ln(o + ε) − ln(p + ε)|`, in linear radiance.
+const LOG_EPS: f32 = 0.01;
+/// Any plausible relight reproduces the photo under its own light at least this well (Identity
+/// log-L1, mean over channels and compared pixels; predicting black gives ≈ 1.5–4).
+const IDENTITY_LOG_L1_MAX: f64 = 0.8;
+/// Any plausible relight gets brighter on the side the light moves to: the right-over-left ratio
+/// grows at least this much from the left light to the right light.
+const SIDE_LIGHT_RATIO_MIN: f64 = 1.5;
+/// The shipped model's values (`cargo test --release -p nam --test real_photos -- --nocapture`
+/// prints them): identity log-L1, chromaticity error `Σ_c |o_c/Σo − p_c/Σp|` (0: same hue and
+/// saturation, 2: disjoint primaries), colourfulness ratio (mean `max_c − min_c` of the
+/// chromaticity, relit / photo; 1: as colourful as the photo), side-light ratio.
+const MEASURED: [(&str, [f64; 4]); 8] = [
+    ("blue-metal-tiped-mush", [0.7275, 0.8176, 0.06, 6.19]),
+    ("dark-mush", [0.1738, 0.1149, 0.54, 11.22]),
+    ("fancy-wood-pattern", [0.2001, 0.1016, 0.48, 2.36]),
+    ("green-carbon-fiber", [0.3838, 0.3732, 0.10, 4.26]),
+    ("long-thin-planks", [0.3602, 0.3037, 0.10, 1.84]),
+    ("nailed-tiles", [0.1733, 0.0356, 3.21, 10.50]),
+    ("redish-mush", [0.3889, 0.4239, 0.11, 4.53]),
+    ("rusty-can-label", [0.3363, 0.4171, 0.12, 2.38]),
+];
+/// Allowed drift of log-L1 and chromaticity error from [`MEASURED`] (f32 rounding across CPUs
+/// moves them by < 1e-3).
+const ABS_TOL: f64 = 0.02;
+/// Allowed relative drift of the two ratios from [`MEASURED`].
+const REL_TOL: f64 = 0.1;
+
+/// What one photo's relights measure.
+#[derive(Debug)]
+struct Measures {
+    log_l1: f64,
+    chroma_err: f64,
+    colourfulness_ratio: f64,
+    side_light_ratio: f64,
+}
+
+fn relit(model: &NeuralModel, material: &nam::NeuralMaterial, light: Vec3d) -> RgbImage<f32> {
+    let scene = Scene::new(Light::Point(light), View::Point(capture_position()));
+    let img = relight(model, material, &scene).expect("relight");
+    assert!(img.first_non_finite().is_none(), "non-finite radiance");
+    assert!(img.data().iter().all(|&v| v >= -1e-3), "negative radiance");
+    img
+}
+
+/// Chromaticity `rgb / Σrgb`.
+fn chroma(p: &[f32]) -> [f64; 3] {
+    let s = f64::from(p[0] + p[1] + p[2]).max(1e-6);
+    [0, 1, 2].map(|c| f64::from(p[c]) / s)
+}
+
+fn colourfulness(c: [f64; 3]) -> f64 {
+    c.iter().copied().fold(f64::MIN, f64::max) - c.iter().copied().fold(f64::MAX, f64::min)
+}
+
+/// Mean radiance of the right half over that of the left half (columns: +x to the right).
+fn right_over_left(img: &RgbImage<f32>) -> f64 {
+    let (w, h) = (img.width(), img.height());
+    let (mut left, mut right) = (0.0f64, 0.0f64);
+    for i in 0..h {
+        for j in 0..w {
+            let s: f32 = img.pixel(i, j).iter().sum();
+            if j < w / 2 {
+                left += f64::from(s);
+            } else {
+                right += f64::from(s);
+            }
+        }
+    }
+    right / left.max(1e-12)
+}
+
+fn measure(model: &NeuralModel, photo: &Photo) -> Measures {
+    let material = model.estimate(photo).expect("estimate");
+    let identity = relit(model, &material, capture_position());
+    let (mut l1, mut chroma_err, mut col_photo, mut col_out, mut n) = (0.0, 0.0, 0.0, 0.0, 0usize);
+    for (p, o) in photo
+        .rgb()
+        .chunks_exact(3)
+        .zip(identity.data().chunks_exact(3))
+    {
+        if p.iter().any(|&v| v >= SATURATED) || p.iter().sum::<f32>() < DARK {
+            continue;
+        }
+        let o: Vec<f32> = o.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        for c in 0..3 {
+            l1 += f64::from(((o[c] + LOG_EPS).ln() - (p[c] + LOG_EPS).ln()).abs()) / 3.0;
+        }
+        let (cp, co) = (chroma(p), chroma(&o));
+        chroma_err += (0..3).map(|c| (cp[c] - co[c]).abs()).sum::<f64>();
+        col_photo += colourfulness(cp);
+        col_out += colourfulness(co);
+        n += 1;
+    }
+    assert!(n > 1000, "only {n} well-exposed pixels to compare");
+    let n = n as f64;
+    let right = relit(model, &material, Vec3d::new(2.0, 0.0, 3.0));
+    let left = relit(model, &material, Vec3d::new(-2.0, 0.0, 3.0));
+    Measures {
+        log_l1: l1 / n,
+        chroma_err: chroma_err / n,
+        colourfulness_ratio: col_out / col_photo.max(1e-9),
+        side_light_ratio: right_over_left(&right) / right_over_left(&left),
+    }
+}
+
+#[test]
+fn the_embedded_model_relights_every_real_photo_as_measured() {
+    let Some(photos) = common::real_photos() else {
+        return;
+    };
+    let model = NeuralModel::embedded().expect("embedded model");
+    let t0 = std::time::Instant::now();
+    let measured: Vec<(String, Measures)> = photos
+        .par_iter()
+        .map(|(name, photo)| (name.clone(), measure(&model, photo)))
+        .collect();
+    eprintln!("photo                       identity log-L1  chroma err  colourfulness  side ratio");
+    for (name, m) in &measured {
+        eprintln!(
+            "{name:<28}{:>15.4}{:>12.4}{:>15.2}{:>12.2}",
+            m.log_l1, m.chroma_err, m.colourfulness_ratio, m.side_light_ratio
+        );
+    }
+    eprintln!(
+        "({} photos, {:.1} s)",
+        measured.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    for (name, m) in &measured {
+        assert!(
+            m.log_l1 <= IDENTITY_LOG_L1_MAX,
+            "{name}: identity log-L1 {:.4} > {IDENTITY_LOG_L1_MAX}",
+            m.log_l1
+        );
+        assert!(
+            m.side_light_ratio >= SIDE_LIGHT_RATIO_MIN,
+            "{name}: moving the light from left to right changes right/left by only {:.2}×",
+            m.side_light_ratio
+        );
+        let Some((_, want)) = MEASURED.iter().find(|(n, _)| n == name) else {
+            panic!("{name}: a photo without a MEASURED row; add the printed values");
+        };
+        let got = [
+            m.log_l1,
+            m.chroma_err,
+            m.colourfulness_ratio,
+            m.side_light_ratio,
+        ];
+        let labels = [
+            "identity log-L1",
+            "chroma error",
+            "colourfulness",
+            "side ratio",
+        ];
+        for k in 0..4 {
+            let tol = if k < 2 { ABS_TOL } else { REL_TOL * want[k] };
+            assert!(
+                (got[k] - want[k]).abs() <= tol,
+                "{name}: {} {:.4}, measured {:.4} for the shipped model (tolerance {tol:.4})",
+                labels[k],
+                got[k],
+                want[k]
+            );
+        }
+    }
+}
