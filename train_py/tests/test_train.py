@@ -11,6 +11,7 @@ from train_py.evaluate import evaluate_protocols, ssim
 from train_py.model import CONFIGS, NamModel
 from train_py.train import (
     TrainStep,
+    chroma_l1,
     display_l1,
     exemplar_targets,
     gather_rows,
@@ -212,6 +213,22 @@ def test_display_term_weighs_dark_colour_errors_and_ignores_what_a_display_clips
     display_l1(black, log(torch.tensor([[0.01] * 3]))).backward()
     # Bounded by the ε offset (without it d/dx x^(1/2.2) at 1e-7 is ~3e3).
     assert (black.grad < 0).all() and float(black.grad.abs().max()) < 10
+
+
+def test_chroma_term_sees_colour_only_and_fades_out_on_dark_pixels():
+    log = torch.log1p
+    red = log(torch.tensor([[0.4, 0.05, 0.05]]))
+    assert float(chroma_l1(red, red)) == 0.0
+    # Brightness alone costs nothing (up to the ε offset); the same brightness in grey costs a lot.
+    assert float(chroma_l1(log(torch.tensor([[0.8, 0.1, 0.1]])), red)) < 0.02
+    grey = log(torch.tensor([[0.1667, 0.1667, 0.1667]]))
+    assert float(chroma_l1(grey, red)) > 5 * float((grey - red).abs().mean())
+    # The same colour error 100x darker weighs far less.
+    dark_red, dark_grey = log(torch.tensor([[0.004, 0.0005, 0.0005]])), log(torch.tensor([[0.00167] * 3]))
+    assert float(chroma_l1(dark_grey, dark_red)) < 0.5 * float(chroma_l1(grey, red))
+    pred = grey.clone().requires_grad_(True)
+    chroma_l1(pred, red).backward()
+    assert pred.grad[0, 0] < 0 < pred.grad[0, 1]  # more red, less green
 
 
 def test_training_from_a_model_file_keeps_its_batchnorms_frozen(tmp_path):
