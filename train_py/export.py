@@ -66,14 +66,13 @@ def unfold_model(path: str | Path) -> NamModel:
     dst: dict[str, torch.Tensor] = {}
     for name, mod in model.named_modules():
         prefix = f"{name}." if name else ""
-        if isinstance(mod, ConvBN):
+        if isinstance(mod, (Conv, nn.Linear, ConvBN)):
             dst[prefix + "weight"] = src[prefix + "weight"]
+        if isinstance(mod, ConvBN):
             bn, scale, shift = prefix + "bn.", torch.ones_like(src[prefix + "bias"]), src[prefix + "bias"]
         elif isinstance(mod, nn.BatchNorm2d) and not name.endswith(".bn"):
             bn, scale, shift = prefix, src[prefix + "scale"], src[prefix + "shift"]
         else:
-            if isinstance(mod, (Conv, nn.Linear)):
-                dst[prefix + "weight"] = src[prefix + "weight"]
             continue
         dst[bn + "weight"] = scale
         dst[bn + "bias"] = shift

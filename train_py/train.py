@@ -65,8 +65,12 @@ def chroma_l1(pred_log: torch.Tensor, target_log: torch.Tensor) -> torch.Tensor:
     term sees nothing *but* colour (and fades out on dark pixels through ``ε``)."""
     pred = torch.expm1(pred_log.clamp(min=0))
     target = torch.expm1(target_log).clamp(min=0)
-    chroma = lambda r: r / (r.sum(-1, keepdim=True) + CHROMA_EPS)  # noqa: E731
-    return (chroma(pred) - chroma(target)).abs().sum(-1).mean()
+    return (chromaticity(pred) - chromaticity(target)).abs().sum(-1).mean()
+
+
+def chromaticity(radiance: torch.Tensor) -> torch.Tensor:
+    """``R / (R_r + R_g + R_b + CHROMA_EPS)`` over the last axis."""
+    return radiance / (radiance.sum(-1, keepdim=True) + CHROMA_EPS)
 
 
 def select_pixels(params: torch.Tensor, k: int, frac: float, generator: torch.Generator | None) -> torch.Tensor:

@@ -8,6 +8,7 @@ import torch
 
 from train_py import ggx, protocols
 from train_py.evaluate import evaluate_protocols, ssim
+from train_py.export import fold_state_dict, save_model, unfold_model
 from train_py.model import CONFIGS, NamModel
 from train_py.train import (
     TrainStep,
@@ -232,8 +233,6 @@ def test_chroma_term_sees_colour_only_and_fades_out_on_dark_pixels():
 
 
 def test_training_from_a_model_file_keeps_its_batchnorms_frozen(tmp_path):
-    from train_py.export import fold_state_dict, save_model, unfold_model
-
     init = tmp_path / "init.safetensors"
     m = NamModel(CONFIGS["tiny"]).eval()
     save_model(fold_state_dict(m), m.config, init, "f32")
