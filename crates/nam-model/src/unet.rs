@@ -100,7 +100,15 @@ impl PackedConv {
 
     /// Replicate-padded convolution (no bias).
     fn run(&self, x: &Hwc) -> Hwc {
-        debug_assert_eq!(x.c, self.cin);
+        self.run_with(x, 0, &self.wt)
+    }
+
+    /// Like [`Self::run`], reading input channels `c0..c0 + cin` of `x` (a view:
+    /// `x.c` may be wider) and using `wt` (same packing as `self.wt`) as weights.
+    fn run_with(&self, x: &Hwc, c0: usize, wt: &[f32]) -> Hwc {
+        debug_assert!(c0 + self.cin <= x.c);
+        debug_assert_eq!(wt.len(), self.wt.len());
+        let whole = c0 == 0 && x.c == self.cin;
         let ho = (x.h + 2 * self.pad - self.k) / self.stride + 1;
         let wo = (x.w + 2 * self.pad - self.k) / self.stride + 1;
         let kk = self.k * self.k * self.cin;
@@ -122,7 +130,11 @@ impl PackedConv {
                                 .saturating_sub(self.pad)
                                 .min(x.h - 1);
                             let x0 = ox * self.stride;
-                            if self.stride == 1 && x0 >= self.pad && x0 + self.k - self.pad <= x.w {
+                            if whole
+                                && self.stride == 1
+                                && x0 >= self.pad
+                                && x0 + self.k - self.pad <= x.w
+                            {
                                 // Interior, stride 1: the k taps of this row are
                                 // k·cin contiguous values; one copy instead of k.
                                 let src = (iy * x.w + x0 - self.pad) * x.c;
@@ -133,14 +145,14 @@ impl PackedConv {
                             }
                             for kx in 0..self.k {
                                 let ix = (x0 + kx).saturating_sub(self.pad).min(x.w - 1);
-                                let src = (iy * x.w + ix) * x.c;
+                                let src = (iy * x.w + ix) * x.c + c0;
                                 let t = (ky * self.k + kx) * self.cin;
-                                row[t..t + self.cin].copy_from_slice(&x.d[src..src + x.c]);
+                                row[t..t + self.cin].copy_from_slice(&x.d[src..src + self.cin]);
                             }
                         }
                     }
                     let b = Mat {
-                        data: &self.wt,
+                        data: wt,
                         ld: self.cout,
                     };
                     if self.cout < TRANSPOSE_BELOW {
@@ -183,37 +195,62 @@ impl PackedConv {
     }
 }
 
-/// Per-channel InstanceNorm of an HWC activation (stats in f64, biased variance).
-fn instance_norm(x: &Hwc, eps: f32) -> Hwc {
-    let n = x.h * x.w;
-    let mut sum = vec![0.0f64; x.c];
-    for px in x.d.chunks_exact(x.c) {
-        for (s, &v) in sum.iter_mut().zip(px) {
-            *s += f64::from(v);
-        }
-    }
-    let mean: Vec<f64> = sum.iter().map(|s| s / n as f64).collect();
-    let mut var = vec![0.0f64; x.c];
-    for px in x.d.chunks_exact(x.c) {
-        for ((q, &v), m) in var.iter_mut().zip(px).zip(&mean) {
-            let d = f64::from(v) - m;
-            *q += d * d;
-        }
-    }
-    let inv: Vec<f32> = var
-        .iter()
-        .map(|q| (1.0 / (q / n as f64 + f64::from(eps)).sqrt()) as f32)
-        .collect();
-    let meanf: Vec<f32> = mean.iter().map(|&m| m as f32).collect();
-    let mut d = x.d.clone();
-    d.par_chunks_mut(x.c * 256).for_each(|chunk| {
-        for px in chunk.chunks_exact_mut(x.c) {
-            for ((v, m), s) in px.iter_mut().zip(&meanf).zip(&inv) {
-                *v = (*v - m) * s;
+/// `x − μ` per channel, with μ (f64) and the InstanceNorm scale `1/√(var + eps)`
+/// (biased variance in f64 from the centred values, as the reference's two passes).
+fn centred_with_stats(x: &Hwc, eps: f32) -> (Hwc, Vec<f64>, Vec<f32>) {
+    let c = x.c;
+    let n = (x.h * x.w) as f64;
+    let add = |mut a: Vec<f64>, b: Vec<f64>| {
+        a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
+        a
+    };
+    let sum =
+        x.d.par_chunks(c * EW_PIXELS)
+            .map(|blk| {
+                let mut acc = vec![0.0f64; c];
+                for px in blk.chunks_exact(c) {
+                    acc.iter_mut()
+                        .zip(px)
+                        .for_each(|(a, &v)| *a += f64::from(v));
+                }
+                acc
+            })
+            .reduce(|| vec![0.0; c], add);
+    let mean: Vec<f64> = sum.iter().map(|s| s / n).collect();
+    let mean32: Vec<f32> = mean.iter().map(|&m| m as f32).collect();
+    let mut d = vec![0.0f32; x.d.len()];
+    let var = d
+        .par_chunks_mut(c * EW_PIXELS)
+        .zip(x.d.par_chunks(c * EW_PIXELS))
+        .map(|(dst, src)| {
+            let mut acc = vec![0.0f64; c];
+            for (o, px) in dst.chunks_exact_mut(c).zip(src.chunks_exact(c)) {
+                for (ch, (o, &v)) in o.iter_mut().zip(px).enumerate() {
+                    *o = v - mean32[ch];
+                    acc[ch] += (f64::from(v) - mean[ch]).powi(2);
+                }
             }
+            acc
+        })
+        .reduce(|| vec![0.0; c], add);
+    let inv = var
+        .iter()
+        .map(|q| (1.0 / (q / n + f64::from(eps)).sqrt()) as f32)
+        .collect();
+    (Hwc { d, ..*x }, mean, inv)
+}
+
+/// Per output column of a packed conv, its response to the constant image
+/// `value[ci]` (replicate padding keeps a constant image constant): `Σ_taps,ci w·value`.
+fn constant_response(conv: &PackedConv, value: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0f64; conv.cout];
+    for (r, row) in conv.wt.chunks_exact(conv.cout).enumerate() {
+        let v = value[r % conv.cin];
+        for (o, &w) in out.iter_mut().zip(row) {
+            *o += f64::from(w) * v;
         }
-    });
-    Hwc { d, ..*x }
+    }
+    out
 }
 
 fn concat(a: &Hwc, b: &Hwc) -> Hwc {
@@ -233,22 +270,61 @@ fn concat(a: &Hwc, b: &Hwc) -> Hwc {
     }
 }
 
-fn sigmoid(v: f32) -> f32 {
-    1.0 / (1.0 + (-v).exp())
+/// `e^x` without a libm call, so element-wise loops vectorise: Cody–Waite
+/// reduction `x = n·ln2 + r`, |r| ≤ ln2/2, and the Cephes `expf` polynomial
+/// (relative error < 2e-7, like `f32::exp`'s 1 ulp order). `x` is clamped to
+/// [−87, 88] (results stay normal); NaN stays NaN.
+#[inline(always)]
+fn exp_fast(x: f32) -> f32 {
+    const MAGIC: f32 = 12_582_912.0; // 1.5·2^23: round to nearest by two adds
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    let x = x.clamp(-87.0, 88.0);
+    let t = x * std::f32::consts::LOG2_E + MAGIC;
+    let n = t - MAGIC;
+    let r = x - n * LN2_HI - n * LN2_LO;
+    let p = 1.987_569_1e-4;
+    let p = p * r + 1.398_199_9e-3;
+    let p = p * r + 8.333_452e-3;
+    let p = p * r + 4.166_579_6e-2;
+    let p = p * r + 1.666_666_5e-1;
+    let p = p * r + 0.5;
+    let e = 1.0 + r + r * r * p;
+    // n sits in the low mantissa bits of t: 2^n from integer ops only (no
+    // float → int conversion, which would keep the loop scalar).
+    let n_bits = t.to_bits().wrapping_sub(MAGIC.to_bits());
+    e * f32::from_bits(n_bits.wrapping_add(127) << 23)
 }
 
-/// One HA-Conv, packed. Column layout of `main`: `[gate | inc2 | down?]`
-/// (stride s) with `inc1a` included first when s = 1.
+#[inline(always)]
+fn sigmoid(v: f32) -> f32 {
+    1.0 / (1.0 + exp_fast(-v))
+}
+
+/// One HA-Conv output value: `gate·leaky(feat) + inc`, `gate` already through the sigmoid.
+#[inline(always)]
+fn ha_mix(gate: f32, feat: f32, inc: f32, slope: f32) -> f32 {
+    let b = if feat >= 0.0 { feat } else { feat * slope };
+    gate * b + inc
+}
+
+/// One HA-Conv, packed: `sigmoid(gate(x))·leaky(feat(IN(x))) + cat(inc1b(inc1a(x)), inc2(x))`.
+///
+/// Every conv that reads `x` is one GEMM on the centred input `x − μ` (μ: the
+/// per-channel mean InstanceNorm computes anyway). InstanceNorm is then only a
+/// per-input-channel scale `1/σ`, folded into the `feat` weights per call, and
+/// each other conv gets back its response to the constant image μ as a bias.
+/// Centring keeps the products small, so a flat channel gives `feat` = 0
+/// exactly, as in the reference.
 #[derive(Debug, Clone)]
 struct Ha {
     cout: usize,
     stride: usize,
-    /// stride s GEMM on x: [inc1a (s = 1 only) | gate | inc2 | down (optional)].
+    /// Stride-s GEMM on `x − μ`, columns `[inc1a (s = 1 only) | gate | inc2 | feat | down?]`.
     main: PackedConv,
-    /// inc1a at stride 1 when s ≠ 1.
+    /// inc1a at stride 1 on `x` itself, when s ≠ 1.
     inc1a: Option<PackedConv>,
     inc1b: PackedConv,
-    feat: PackedConv,
     has_down: bool,
 }
 
@@ -271,6 +347,7 @@ impl Ha {
         }
         parts.push((g, cout, 3));
         parts.push((i2, cout / 2, 3));
+        parts.push((f, cout, 3));
         if let Some(d) = down {
             parts.push((d, cout, 1));
         }
@@ -280,71 +357,82 @@ impl Ha {
             main: PackedConv::fused(&parts, cin, 3, stride),
             inc1a: (stride != 1).then(|| PackedConv::fused(&[(i1a, cout, 3)], cin, 3, 1)),
             inc1b: PackedConv::fused(&[(i1b, cout / 2, 3)], cout, 3, stride),
-            feat: PackedConv::fused(&[(f, cout, 3)], cin, 3, stride),
             has_down: down.is_some(),
         })
     }
 
-    /// Returns (HA output, down-conv output without bias if fused).
+    /// Returns (HA output, down-conv output without its bias if fused).
     fn run(&self, x: &Hwc, eps: f32, slope: f32) -> (Hwc, Option<Hwc>) {
-        let co = self.cout;
-        let main = self.main.run(x);
+        let (co, half) = (self.cout, self.cout / 2);
         let off = if self.stride == 1 { co } else { 0 };
-        let c1b = match &self.inc1a {
-            Some(c) => self.inc1b.run(&c.run(x)),
-            None => {
-                // inc1a occupies columns 0..co of `main`.
-                let a = Hwc {
-                    h: main.h,
-                    w: main.w,
-                    c: co,
-                    d: main
-                        .d
-                        .chunks_exact(main.c)
-                        .flat_map(|px| px[..co].iter().copied())
-                        .collect(),
-                };
-                self.inc1b.run(&a)
-            }
+        let feat0 = off + co + half;
+        let (xc, mean, inv) = centred_with_stats(x, eps);
+        // Columns other than feat: response to μ (feat sees x − μ only).
+        let mut bias = constant_response(&self.main, &mean);
+        bias[feat0..feat0 + co].fill(0.0);
+        let mut wt = self.main.wt.clone();
+        let cols = self.main.cout;
+        for (r, row) in wt.chunks_exact_mut(cols).enumerate() {
+            let s = inv[r % self.main.cin];
+            row[feat0..feat0 + co].iter_mut().for_each(|w| *w *= s);
+        }
+        let main = self.main.run_with(&xc, 0, &wt);
+        let (c1b, c1b_bias) = match &self.inc1a {
+            Some(c) => (self.inc1b.run(&c.run(x)), vec![0.0; half]),
+            // inc1a without its bias sits in columns 0..co of `main`; inc1b of
+            // that constant bias image is again a constant.
+            None => (
+                self.inc1b.run_with(&main, 0, &self.inc1b.wt),
+                constant_response(&self.inc1b, &bias[..co]),
+            ),
         };
-        let feat = self.feat.run(&instance_norm(x, eps));
+        let f32s = |v: &[f64]| -> Vec<f32> { v.iter().map(|&b| b as f32).collect() };
+        let (bias, c1b_bias) = (f32s(&bias), f32s(&c1b_bias));
         let (h, w) = (main.h, main.w);
         let mut out = vec![0.0f32; h * w * co];
-        let half = co / 2;
         const P: usize = EW_PIXELS;
+        let (gate_b, inc2_b) = bias[off..feat0].split_at(co);
         out.par_chunks_mut(co * P)
             .zip(main.d.par_chunks(main.c * P))
-            .zip(feat.d.par_chunks(co * P).zip(c1b.d.par_chunks(half * P)))
-            .for_each(|((o, m), (f, c1))| {
+            .zip(c1b.d.par_chunks(half * P))
+            .for_each(|((o, m), c1)| {
+                // gate + bias, then the sigmoid over the whole contiguous block
+                // (a flat loop vectorises; a per-pixel one over `co` does not).
+                for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(main.c)) {
+                    for ((o, &g), &b) in o.iter_mut().zip(&m[off..off + co]).zip(gate_b) {
+                        *o = g + b;
+                    }
+                }
+                o.iter_mut().for_each(|v| *v = sigmoid(*v));
                 let px = o
                     .chunks_exact_mut(co)
                     .zip(m.chunks_exact(main.c))
-                    .zip(f.chunks_exact(co).zip(c1.chunks_exact(half)));
-                for ((o, m), (f, c1)) in px {
-                    for k in 0..co {
-                        let a = sigmoid(m[off + k]);
-                        let b = if f[k] >= 0.0 { f[k] } else { f[k] * slope };
-                        let c = if k < half {
-                            c1[k]
-                        } else {
-                            m[off + co + k - half]
-                        };
-                        o[k] = a * b + c;
+                    .zip(c1.chunks_exact(half));
+                for ((o, m), c1) in px {
+                    // Channels < half add inc1b, the rest inc2 (columns after the gate).
+                    let (inc2, feat) = m[off + co..feat0 + co].split_at(half);
+                    let (o_lo, o_hi) = o.split_at_mut(half);
+                    let (f_lo, f_hi) = feat.split_at(half);
+                    for k in 0..half {
+                        o_lo[k] = ha_mix(o_lo[k], f_lo[k], c1[k] + c1b_bias[k], slope);
+                        o_hi[k] = ha_mix(o_hi[k], f_hi[k], inc2[k] + inc2_b[k], slope);
                     }
                 }
             });
         let down = self.has_down.then(|| {
-            let s = off + co + half;
-            Hwc {
-                h,
-                w,
-                c: co,
-                d: main
-                    .d
-                    .chunks_exact(main.c)
-                    .flat_map(|px| px[s..s + co].iter().copied())
-                    .collect(),
-            }
+            let s = feat0 + co;
+            let b = &bias[s..s + co];
+            let mut d = vec![0.0f32; h * w * co];
+            d.par_chunks_mut(co * P)
+                .zip(main.d.par_chunks(main.c * P))
+                .for_each(|(o, m)| {
+                    for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(main.c)) {
+                        for ((o, &v), &b) in o.iter_mut().zip(&m[s..s + co]).zip(b) {
+                            *o = v + b;
+                        }
+                    }
+                });
+            Hwc { h, w, c: co, d }
         });
         (
             Hwc {
@@ -550,13 +638,19 @@ impl Reverse {
                     );
                 },
             );
-            for (idx, v) in sub.chunks_exact(co).enumerate() {
-                let (iy, ix) = (idx / w, idx % w);
-                let o = ((2 * iy + py) * wo + 2 * ix + px) * co;
-                for k in 0..co {
-                    y[o + k] = (v[k] + self.up4_b[k]).max(0.0);
-                }
-            }
+            // Output rows of parity py take input row oy / 2, pixels of parity px.
+            y.par_chunks_mut(wo * co)
+                .skip(py)
+                .step_by(2)
+                .zip(sub.par_chunks(w * co))
+                .for_each(|(row, src)| {
+                    for (ix, v) in src.chunks_exact(co).enumerate() {
+                        let o = &mut row[(2 * ix + px) * co..(2 * ix + px + 1) * co];
+                        for ((o, &v), &b) in o.iter_mut().zip(v).zip(&self.up4_b) {
+                            *o = (v + b).max(0.0);
+                        }
+                    }
+                });
         }
         let mut y = self.conv.run(&Hwc {
             h: ho,
@@ -701,17 +795,20 @@ impl UNet {
             }
         }
         let (eps, sl) = (self.eps, self.slope);
-        let mut x = self.stem.run(&Hwc {
+        let stem = self.stem.run(&Hwc {
             h: hp,
             w: wp,
             c: ci,
             d,
         });
-        let mut skips = Vec::with_capacity(4);
+        // Encoder outputs e1..e4; e1..e3 are the decoder's skips.
+        let mut skips: Vec<Hwc> = Vec::with_capacity(4);
         for pair in self.enc.chunks_exact(2) {
-            x = pair[1].run(&pair[0].run(&x, eps, sl), eps, sl);
-            skips.push(x.clone());
+            let input = skips.last().unwrap_or(&stem);
+            let y = pair[1].run(&pair[0].run(input, eps, sl), eps, sl);
+            skips.push(y);
         }
+        let mut x = skips.pop().expect("four encoder levels");
         x.d.iter_mut().for_each(|v| *v = v.atan());
         let x = self.dec1.1.run(&self.dec1.0.run(&x), eps, sl);
         let x = self
@@ -728,15 +825,45 @@ impl UNet {
             .run(&self.dec4.0.run(&concat(&x, &skips[0]), eps, sl), eps, sl);
         let out = self.head.run(&x);
         let pc = self.params;
-        let mut data = Vec::with_capacity(height * width * pc);
-        for y in 0..height {
-            data.extend_from_slice(&out.d[y * wp * pc..(y * wp + width) * pc]);
-        }
+        let data = if (height, width) == (hp, wp) {
+            out.d
+        } else {
+            let mut data = Vec::with_capacity(height * width * pc);
+            for y in 0..height {
+                data.extend_from_slice(&out.d[y * wp * pc..(y * wp + width) * pc]);
+            }
+            data
+        };
         Ok(ParamMap {
             height,
             width,
             channels: pc,
             data,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Relative error bound of [`exp_fast`] (the polynomial's, plus f32 rounding).
+    const EXP_REL_TOL: f64 = 3e-7;
+
+    #[test]
+    fn exp_fast_matches_f64_exp_over_its_range_and_clamps_beyond() {
+        let mut worst = 0.0f64;
+        for i in 0..=200_000 {
+            let x = -87.0 + 175.0 * i as f32 / 200_000.0;
+            let want = f64::from(x).exp();
+            worst = worst.max((f64::from(exp_fast(x)) - want).abs() / want);
+        }
+        assert!(worst < EXP_REL_TOL, "worst relative error {worst:e}");
+        assert_eq!(exp_fast(-1e30), exp_fast(-87.0));
+        assert_eq!(exp_fast(1e30), exp_fast(88.0));
+        assert!(exp_fast(88.0).is_finite() && exp_fast(-87.0) > 0.0);
+        assert!(exp_fast(f32::NAN).is_nan());
+        assert_eq!(sigmoid(0.0), 0.5);
+        assert!(sigmoid(-200.0) < 1e-37 && sigmoid(200.0) == 1.0);
     }
 }
