@@ -362,7 +362,15 @@ impl Ha {
     }
 
     /// Returns (HA output, down-conv output without its bias if fused).
-    fn run(&self, x: &Hwc, eps: f32, slope: f32) -> (Hwc, Option<Hwc>) {
+    /// `post(p, out)` finishes output pixel `p` in place (the block's
+    /// BatchNorm, residual and ReLU), while the pixel is still in cache.
+    fn run(
+        &self,
+        x: &Hwc,
+        eps: f32,
+        slope: f32,
+        post: impl Fn(usize, &mut [f32]) + Sync,
+    ) -> (Hwc, Option<Hwc>) {
         let (co, half) = (self.cout, self.cout / 2);
         let off = if self.stride == 1 { co } else { 0 };
         let feat0 = off + co + half;
@@ -395,7 +403,8 @@ impl Ha {
         out.par_chunks_mut(co * P)
             .zip(main.d.par_chunks(main.c * P))
             .zip(c1b.d.par_chunks(half * P))
-            .for_each(|((o, m), c1)| {
+            .enumerate()
+            .for_each(|(chunk, ((o, m), c1))| {
                 // gate + bias, then the sigmoid over the whole contiguous block
                 // (a flat loop vectorises; a per-pixel one over `co` does not).
                 for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(main.c)) {
@@ -408,7 +417,7 @@ impl Ha {
                     .chunks_exact_mut(co)
                     .zip(m.chunks_exact(main.c))
                     .zip(c1.chunks_exact(half));
-                for ((o, m), c1) in px {
+                for (i, ((o, m), c1)) in px.enumerate() {
                     // Channels < half add inc1b, the rest inc2 (columns after the gate).
                     let (inc2, feat) = m[off + co..feat0 + co].split_at(half);
                     let (o_lo, o_hi) = o.split_at_mut(half);
@@ -417,6 +426,7 @@ impl Ha {
                         o_lo[k] = ha_mix(o_lo[k], f_lo[k], c1[k] + c1b_bias[k], slope);
                         o_hi[k] = ha_mix(o_hi[k], f_hi[k], inc2[k] + inc2_b[k], slope);
                     }
+                    post(chunk * P + i, o);
                 }
             });
         let down = self.has_down.then(|| {
@@ -487,18 +497,13 @@ impl Basic {
     }
 
     fn run(&self, x: &Hwc, eps: f32, slope: f32) -> Hwc {
-        let (mut y, down) = self.ha1.run(x, eps, slope);
-        let co = y.c;
         let (s1, t1) = &self.bn1;
-        const P: usize = EW_PIXELS;
-        y.d.par_chunks_mut(co * P).for_each(|blk| {
-            for px in blk.chunks_exact_mut(co) {
-                for k in 0..co {
-                    px[k] = (px[k] * s1[k] + t1[k]).max(0.0);
-                }
+        let (y, down) = self.ha1.run(x, eps, slope, |_, px| {
+            for ((v, s), t) in px.iter_mut().zip(s1).zip(t1) {
+                *v = (*v * s + t).max(0.0);
             }
         });
-        let (mut y, _) = self.ha2.run(&y, eps, slope);
+        let co = y.c;
         let (s2, t2) = &self.bn2;
         // Identity branch: the fused 1×1 `down` conv plus its bias, or x itself.
         let zero = vec![0.0f32; co];
@@ -506,15 +511,12 @@ impl Basic {
             (Some(d), Some(b)) => (&d.d, b),
             _ => (&x.d, &zero),
         };
-        y.d.par_chunks_mut(co * P)
-            .zip(id.par_chunks(co * P))
-            .for_each(|(blk, idb)| {
-                for (px, id) in blk.chunks_exact_mut(co).zip(idb.chunks_exact(co)) {
-                    for k in 0..co {
-                        px[k] = (px[k] * s2[k] + t2[k] + id[k] + bias[k]).max(0.0);
-                    }
-                }
-            });
+        let (y, _) = self.ha2.run(&y, eps, slope, |p, px| {
+            let id = &id[p * co..(p + 1) * co];
+            for (k, v) in px.iter_mut().enumerate() {
+                *v = (*v * s2[k] + t2[k] + id[k] + bias[k]).max(0.0);
+            }
+        });
         y
     }
 }
