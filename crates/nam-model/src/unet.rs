@@ -98,17 +98,17 @@ impl PackedConv {
         }
     }
 
-    /// Replicate-padded convolution (no bias).
+    /// Replicate-padded convolution (no bias) of the first `cin` channels of
+    /// `x` (`x.c` may be wider: a view of a fused GEMM's leading columns).
     fn run(&self, x: &Hwc) -> Hwc {
-        self.run_with(x, 0, &self.wt)
+        self.run_with(x, &self.wt)
     }
 
-    /// Like [`Self::run`], reading input channels `c0..c0 + cin` of `x` (a view:
-    /// `x.c` may be wider) and using `wt` (same packing as `self.wt`) as weights.
-    fn run_with(&self, x: &Hwc, c0: usize, wt: &[f32]) -> Hwc {
-        debug_assert!(c0 + self.cin <= x.c);
+    /// Like [`Self::run`], with `wt` (same packing as `self.wt`) as weights.
+    fn run_with(&self, x: &Hwc, wt: &[f32]) -> Hwc {
+        debug_assert!(self.cin <= x.c);
         debug_assert_eq!(wt.len(), self.wt.len());
-        let whole = c0 == 0 && x.c == self.cin;
+        let whole = x.c == self.cin;
         let ho = (x.h + 2 * self.pad - self.k) / self.stride + 1;
         let wo = (x.w + 2 * self.pad - self.k) / self.stride + 1;
         let kk = self.k * self.k * self.cin;
@@ -145,7 +145,7 @@ impl PackedConv {
                             }
                             for kx in 0..self.k {
                                 let ix = (x0 + kx).saturating_sub(self.pad).min(x.w - 1);
-                                let src = (iy * x.w + ix) * x.c + c0;
+                                let src = (iy * x.w + ix) * x.c;
                                 let t = (ky * self.k + kx) * self.cin;
                                 row[t..t + self.cin].copy_from_slice(&x.d[src..src + self.cin]);
                             }
@@ -272,7 +272,7 @@ fn concat(a: &Hwc, b: &Hwc) -> Hwc {
 
 /// `e^x` without a libm call, so element-wise loops vectorise: Cody–Waite
 /// reduction `x = n·ln2 + r`, |r| ≤ ln2/2, and the Cephes `expf` polynomial
-/// (relative error < 2e-7, like `f32::exp`'s 1 ulp order). `x` is clamped to
+/// (relative error < 3e-7, tested against f64). `x` is clamped to
 /// [−87, 88] (results stay normal); NaN stays NaN.
 #[inline(always)]
 fn exp_fast(x: f32) -> f32 {
@@ -384,13 +384,13 @@ impl Ha {
             let s = inv[r % self.main.cin];
             row[feat0..feat0 + co].iter_mut().for_each(|w| *w *= s);
         }
-        let main = self.main.run_with(&xc, 0, &wt);
+        let main = self.main.run_with(&xc, &wt);
         let (c1b, c1b_bias) = match &self.inc1a {
             Some(c) => (self.inc1b.run(&c.run(x)), vec![0.0; half]),
-            // inc1a without its bias sits in columns 0..co of `main`; inc1b of
-            // that constant bias image is again a constant.
+            // inc1a without its bias sits in columns 0..co of `main` (read as a
+            // view); inc1b of that constant bias image is again a constant.
             None => (
-                self.inc1b.run_with(&main, 0, &self.inc1b.wt),
+                self.inc1b.run(&main),
                 constant_response(&self.inc1b, &bias[..co]),
             ),
         };
