@@ -25,6 +25,8 @@ RENDER_HIDDEN_SLOPE = 0.01
 RENDER_OUT_SLOPE = 0.001
 PE_OCTAVES = 16
 PARAM_CHANNELS = 64
+#: Network input channels: log RGB + the capture half vector's z.
+IN_CHANNELS = 4
 ND_DIMS = (297, 594, 594, 32)
 RENDER_DIMS = (96, 128, 128, 128, 128, 128, 64, 3)
 #: The U-Net downsamples three times: inputs are padded to a multiple of this.
@@ -37,13 +39,18 @@ class ModelConfig:
 
     width: int = 8
     log_mode: str = "ldr"
+    #: The head sees ``[decoder output, network input]`` (C + 4 channels) instead of the decoder
+    #: output alone: a direct path for the photo's per-pixel colour (not in the paper, see
+    #: ``UNet``). Absent from older files' config = ``False``.
+    input_skip: bool = False
 
     def to_json_dict(self, dtype: str, bn_folded: bool = True) -> dict:
         return {
             "format": "nam-model",
             "version": 1,
             "width": self.width,
-            "in_channels": 4,
+            "in_channels": IN_CHANNELS,
+            "input_skip": self.input_skip,
             "param_channels": PARAM_CHANNELS,
             "log_mode": self.log_mode,
             "pe_octaves": PE_OCTAVES,
@@ -66,7 +73,9 @@ class ModelConfig:
             raise ValueError(f"not a nam-model v1 config: {cfg.get('format')!r} v{cfg.get('version')!r}")
         if tuple(cfg["nd_enc"]) != ND_DIMS or tuple(cfg["render"]) != RENDER_DIMS:
             raise ValueError("unsupported nd_enc/render dimensions")
-        return ModelConfig(width=int(cfg["width"]), log_mode=str(cfg["log_mode"]))
+        return ModelConfig(
+            width=int(cfg["width"]), log_mode=str(cfg["log_mode"]), input_skip=bool(cfg.get("input_skip", False))
+        )
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -222,10 +231,11 @@ class ReverseBlock(nn.Module):
 class UNet(nn.Module):
     """``M_est``: input ``[B, 4, H, W]`` (any H, W) → params ``[B, 64, H, W]``."""
 
-    def __init__(self, width: int, folded: bool):
+    def __init__(self, width: int, folded: bool, input_skip: bool = False):
         super().__init__()
         c = width
-        self.stem = Conv(4, c, 7)
+        self.input_skip = input_skip
+        self.stem = Conv(IN_CHANNELS, c, 7)
         widths = [c, 2 * c, 4 * c, 8 * c]
         cin = c
         for k, (w, s) in enumerate(zip(widths, [1, 2, 2, 2], strict=True), start=1):
@@ -235,7 +245,7 @@ class UNet(nn.Module):
         self.dec2 = nn.Sequential(ReverseBlock(12 * c, 4 * c, folded), BasicBlock(4 * c, 4 * c, 1, folded))
         self.dec3 = nn.Sequential(ReverseBlock(6 * c, 2 * c, folded), BasicBlock(2 * c, 2 * c, 1, folded))
         self.dec4 = nn.Sequential(BasicBlock(3 * c, c, 1, folded), BasicBlock(c, c, 1, folded))
-        self.head = Conv(c, PARAM_CHANNELS, 7)
+        self.head = Conv(c + (IN_CHANNELS if input_skip else 0), PARAM_CHANNELS, 7)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         height, width = x.shape[-2:]
@@ -243,6 +253,7 @@ class UNet(nn.Module):
         pad_w = (-width) % SIZE_MULTIPLE
         if pad_h or pad_w:
             x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
+        photo = x
         x = self.stem(x)
         e1 = self.enc1(x)
         e2 = self.enc2(e1)
@@ -253,7 +264,7 @@ class UNet(nn.Module):
         x = self.dec2(torch.cat([x, e3], dim=1))
         x = self.dec3(torch.cat([x, e2], dim=1))
         x = self.dec4(torch.cat([x, e1], dim=1))
-        x = self.head(x)
+        x = self.head(torch.cat([x, photo], dim=1) if self.input_skip else x)
         return x[..., :height, :width]
 
 
@@ -350,7 +361,7 @@ class NamModel(nn.Module):
         super().__init__()
         self.config = config
         self.folded = folded
-        self.est = UNet(config.width, folded)
+        self.est = UNet(config.width, folded, config.input_skip)
         self.nd_enc = NDEnc()
         self.render = RenderMLP()
 

@@ -19,6 +19,7 @@ Under ``torchrun`` (``WORLD_SIZE`` set) it runs DDP.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -32,7 +33,7 @@ from torch import nn
 from . import gen, ggx, protocols
 from .evaluate import evaluate_protocols
 from .export import freeze_batchnorm, unfold_model
-from .model import CONFIGS, PARAM_CHANNELS, NamModel, positional_encoding, query_dirs
+from .model import CONFIGS, IN_CHANNELS, PARAM_CHANNELS, NamModel, positional_encoding, query_dirs
 
 #: Guards the inverse param-norm sampling weights against an all-zero parameter vector.
 NORM_EPS = 1e-6
@@ -71,6 +72,18 @@ def chroma_l1(pred_log: torch.Tensor, target_log: torch.Tensor) -> torch.Tensor:
 def chromaticity(radiance: torch.Tensor) -> torch.Tensor:
     """``R / (R_r + R_g + R_b + CHROMA_EPS)`` over the last axis."""
     return radiance / (radiance.sum(-1, keepdim=True) + CHROMA_EPS)
+
+
+def with_input_skip(state: dict[str, torch.Tensor], had: bool, wants: bool) -> dict[str, torch.Tensor]:
+    """``state`` for a model whose head does (``wants``) or does not see the network input; a head
+    that gains the input starts with zero weights on it, so the model computes what it did."""
+    if had == wants:
+        return state
+    if had:
+        raise SystemExit("--init-from: the model file has --input-skip; keep it")
+    head = state["est.head.weight"]
+    pad = head.new_zeros(head.shape[0], IN_CHANNELS, *head.shape[2:])
+    return {**state, "est.head.weight": torch.cat([head, pad], dim=1)}
 
 
 def select_pixels(params: torch.Tensor, k: int, frac: float, generator: torch.Generator | None) -> torch.Tensor:
@@ -226,6 +239,12 @@ def parse_args(argv=None):
         "start the run (fresh schedule)",
     )
     ap.add_argument(
+        "--input-skip",
+        action="store_true",
+        help="the U-Net head also sees the network input (a direct colour path, not in the paper); "
+        "with --init-from a model without it, the new head weights start at zero",
+    )
+    ap.add_argument(
         "--no-straight-through",
         action="store_true",
         help="true LeakyReLU(0.001) gradient at the output (dies early; for comparisons only)",
@@ -250,7 +269,8 @@ def train(args) -> dict:
     ckpt_path = out / "ckpt.pt"
 
     torch.manual_seed(args.seed)
-    model = NamModel(CONFIGS[args.config]).to(device)
+    config = dataclasses.replace(CONFIGS[args.config], input_skip=args.input_skip)
+    model = NamModel(config).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     #: ``frozen_bn``: BatchNorms in eval mode throughout (a run started from a folded model file).
     state = {"step": 0, "elapsed": 0.0, "loss": None, "history": [], "frozen_bn": False}
@@ -263,9 +283,9 @@ def train(args) -> dict:
             print(f"resumed {ckpt_path} at step {state['step']} ({state['elapsed'] / 60:.1f} min)", flush=True)
     elif args.init_from and Path(args.init_from).suffix == ".safetensors":
         init = unfold_model(args.init_from)
-        if init.config != model.config:
+        if dataclasses.replace(init.config, input_skip=model.config.input_skip) != model.config:
             raise SystemExit(f"--init-from {args.init_from}: {init.config} does not match --config {args.config}")
-        model.load_state_dict(init.state_dict())
+        model.load_state_dict(with_input_skip(init.state_dict(), init.config.input_skip, model.config.input_skip))
         state["frozen_bn"] = True
         if rank == 0:
             print(f"initialised from {args.init_from} (BatchNorms frozen)", flush=True)

@@ -74,9 +74,9 @@ def test_positional_encoding_order_and_exact_range_reduction():
     assert (naive.double() - ref[:, 9 + 18 * 15 : 9 + 18 * 16 : 2]).abs().max() > 1e-3  # why the reduction exists
 
 
-def random_bn_model(width: int = 4, seed: int = 3) -> NamModel:
+def random_bn_model(width: int = 4, seed: int = 3, input_skip: bool = False) -> NamModel:
     torch.manual_seed(seed)
-    m = NamModel(ModelConfig(width=width))
+    m = NamModel(ModelConfig(width=width, input_skip=input_skip))
     with torch.no_grad():
         golden.randomize_batchnorm(m, torch.Generator().manual_seed(seed))
     return m.eval()
@@ -96,6 +96,28 @@ def test_folded_model_matches_training_model_in_eval_mode(tmp_path):
     p = torch.randn(40, 64)
     with torch.no_grad():
         torch.testing.assert_close(folded.render_log(p, dirs), m.render_log(p, dirs))
+
+
+def test_input_skip_head_sees_the_input_and_survives_export(tmp_path):
+    m = random_bn_model(input_skip=True)
+    assert m.est.head.weight.shape == (64, 4 + 4, 7, 7)
+    path = tmp_path / "s.safetensors"
+    save_model(fold_state_dict(m), m.config, path, "f32")
+    assert read_config(path)["input_skip"] is True
+    folded = load_model(path)
+    assert folded.config.input_skip
+    x = torch.rand(1, 4, 19, 30)
+    with torch.no_grad():
+        ref = m.estimate(x)
+        torch.testing.assert_close(folded.estimate(x), ref, rtol=0, atol=FOLD_ATOL)
+        # Only the skip's weights on the input change the output through that path.
+        m.est.head.weight[:, 4:] = 0
+        without = m.estimate(x)
+    assert (ref - without).abs().max() > 1e-3
+    # A config written before the flag existed reads as no skip.
+    cfg = read_config(FIXTURES / "net_tiny.safetensors")
+    cfg.pop("input_skip", None)
+    assert ModelConfig.from_json_dict(cfg).input_skip is False
 
 
 def test_unfolded_model_file_computes_what_the_file_does_and_folds_back_to_it(tmp_path):

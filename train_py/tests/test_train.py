@@ -1,5 +1,6 @@
 """Training pieces: Reflect sampling, pixel selection, loss decrease, DDP with one process, evaluation."""
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -19,6 +20,7 @@ from train_py.train import (
     make_batch,
     select_pixels,
     select_shared_pixels,
+    with_input_skip,
 )
 
 from .conftest import REPO
@@ -252,3 +254,14 @@ def test_training_from_a_model_file_keeps_its_batchnorms_frozen(tmp_path):
         [*cmd[:4], "small", *cmd[5:], "--out", str(tmp_path / "wrong")], cwd=REPO, capture_output=True, text=True
     )
     assert wrong.returncode != 0 and "does not match --config small" in wrong.stderr
+
+
+def test_input_skip_fine_tune_starts_from_what_the_file_computes():
+    m = NamModel(CONFIGS["tiny"]).eval()
+    state = with_input_skip(m.state_dict(), had=False, wants=True)
+    skip = NamModel(dataclasses.replace(CONFIGS["tiny"], input_skip=True)).eval()
+    skip.load_state_dict(state)
+    x = torch.rand(2, 4, 16, 24)
+    with torch.no_grad():
+        torch.testing.assert_close(skip.estimate(x), m.estimate(x), rtol=0, atol=0)
+    assert with_input_skip(state, had=True, wants=True) is state

@@ -60,7 +60,10 @@ enum RowDirections<'a> {
 
 #[derive(Debug)]
 struct EstimatePlan {
+    /// Holds the network input at element `input_at` (after the decoder output the head
+    /// reads with it, when the model has an input skip).
     input: DeviceBuffer,
+    input_at: u64,
     output: DeviceBuffer,
     dispatches: Vec<Dispatch>,
 }
@@ -474,7 +477,9 @@ impl GpuNetwork {
             let (cin, cout) = (u64::from(r.cin), u64::from(r.cout));
             16 * cin * cout * hw_in + 9 * cout * cout * 4 * hw_in + 4 * cin * cout * hw_in
         };
-        let mut macs = 49 * hw * c * (u64::from(u.in_channels) + u64::from(u.param_channels));
+        let (cin, pc) = (u64::from(u.in_channels), u64::from(u.param_channels));
+        let head_in = c + if u.input_skip { cin } else { 0 };
+        let mut macs = 49 * hw * (c * cin + head_in * pc);
         let mut level = hw;
         for stage in &u.enc {
             macs += basic(&stage[0], level);
@@ -533,11 +538,20 @@ impl GpuNetwork {
             d: mk("scratch d", scratch)?,
             norm: ctx.storage("instance norm", 2 * 12 * c64, Precision::F32)?,
         };
-        let input = mk("input", u64::from(u.in_channels) * hw)?;
+        // With an input skip the head reads cat([decoder output, input]) from one buffer:
+        // the input sits after the decoder's C channels and dec4 writes in front of it.
+        let cin = u64::from(u.in_channels);
+        let input_at = if u.input_skip { c64 * hw } else { 0 };
+        let input = mk("input", input_at + cin * hw)?;
         let output = mk("params", u64::from(u.param_channels) * hw)?;
         let stem_out = mk("stem", c64 * hw)?;
         let mid = mk("mid", 2 * c64 * hw)?;
-        let mid2 = mk("mid2", c64 * hw)?;
+        // dec4's output: the head's own buffer, or in front of the input (input skip).
+        let mid2 = if u.input_skip {
+            None
+        } else {
+            Some(mk("mid2", c64 * hw)?)
+        };
         // Decoder inputs cat([x, skip]) live in one buffer each; encoders write skips in place.
         let cat4 = mk("cat4", 3 * c64 * hw)?; // [2C x | C e1] at H
         let cat3 = mk("cat3", 6 * c64 * hw / 4)?; // [4C x | 2C e2] at H/2
@@ -555,7 +569,7 @@ impl GpuNetwork {
         b.out.push(ops::conv2d(
             ctx,
             p,
-            v(&input, 0)?,
+            v(&input, input_at)?,
             &u.stem.buffer,
             None,
             None,
@@ -611,17 +625,18 @@ impl GpuNetwork {
             x = v(dst, 0)?;
         }
         b.basic(&u.dec4[0], v(&cat4, 0)?, h, w, v(&mid, 0)?)?;
-        b.basic(&u.dec4[1], v(&mid, 0)?, h, w, v(&mid2, 0)?)?;
+        let head_in = mid2.as_ref().unwrap_or(&input);
+        b.basic(&u.dec4[1], v(&mid, 0)?, h, w, v(head_in, 0)?)?;
         b.out.push(ops::conv2d(
             ctx,
             p,
-            v(&mid2, 0)?,
+            v(head_in, 0)?,
             &u.head.buffer,
             None,
             None,
             v(&output, 0)?,
             ConvShape {
-                cin: c,
+                cin: c + if u.input_skip { u.in_channels } else { 0 },
                 h,
                 w,
                 cout: u.param_channels,
@@ -633,6 +648,7 @@ impl GpuNetwork {
         )?);
         Ok(EstimatePlan {
             input,
+            input_at,
             output,
             dispatches: b.out,
         })
@@ -693,7 +709,7 @@ impl GpuNetwork {
                 dst[w..].fill(src[w - 1]);
             }
         }
-        self.ctx.write(&plan.input, 0, &padded)?;
+        self.ctx.write(&plan.input, plan.input_at, &padded)?;
         self.ctx.run(&plan.dispatches)?;
         let chw = self.ctx.read(&plan.output, (pc * hp * wp) as u64)?;
         let mut hwc = vec![0.0f32; h * w * pc];

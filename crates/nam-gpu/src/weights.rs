@@ -45,6 +45,8 @@ pub(crate) struct ReverseWeights {
 pub(crate) struct UnetWeights {
     pub width: u32,
     pub in_channels: u32,
+    /// The head convolves `[decoder output, network input]` (`ModelConfig::input_skip`).
+    pub input_skip: bool,
     pub param_channels: u32,
     pub eps: f32,
     pub ha_slope: f32,
@@ -219,6 +221,7 @@ pub(crate) fn upload_unet(
     Ok(UnetWeights {
         width: u(c, "width")?,
         in_channels: u(cfg.in_channels, "in_channels")?,
+        input_skip: cfg.input_skip,
         param_channels: u(cfg.param_channels, "param_channels")?,
         eps: cfg.norm_eps,
         ha_slope: cfg.slopes.ha,
@@ -230,7 +233,11 @@ pub(crate) fn upload_unet(
             up.basic(&dec4.scope("0"), 3 * c, c, 1)?,
             up.basic(&dec4.scope("1"), c, c, 1)?,
         ],
-        head: up.get(&est, "head.weight", &[cfg.param_channels, c, 7, 7])?,
+        head: up.get(
+            &est,
+            "head.weight",
+            &[cfg.param_channels, cfg.head_in_channels(), 7, 7],
+        )?,
     })
 }
 

@@ -44,10 +44,17 @@ fn gpu() -> Option<&'static Mutex<DeviceHandles>> {
     g.as_ref()
 }
 
+/// The random C=4 fixture model and its golden tensors.
 fn load() -> (Weights, TensorFile) {
-    let w = Weights::from_file(fixture("net_tiny.safetensors")).unwrap_or_else(|e| panic!("{e}"));
-    let g = TensorFile::from_file(fixture("net_tiny_golden.safetensors"))
-        .unwrap_or_else(|e| panic!("{e}"));
+    load_pair(
+        fixture("net_tiny.safetensors"),
+        "net_tiny_golden.safetensors",
+    )
+}
+
+fn load_pair(model: PathBuf, golden: &str) -> (Weights, TensorFile) {
+    let w = Weights::from_file(model).unwrap_or_else(|e| panic!("{e}"));
+    let g = TensorFile::from_file(fixture(golden)).unwrap_or_else(|e| panic!("{e}"));
     (w, g)
 }
 
@@ -84,13 +91,17 @@ fn network(p: Precision, weights: &Weights) -> Option<GpuNetwork> {
 
 fn estimate_case(p: Precision, tol: f32, mean_tol: f32) {
     let (weights, golden) = load();
-    let Some(mut net) = network(p, &weights) else {
+    estimate_against(&weights, &golden, p, tol, mean_tol);
+}
+
+fn estimate_against(weights: &Weights, golden: &TensorFile, p: Precision, tol: f32, mean_tol: f32) {
+    let Some(mut net) = network(p, weights) else {
         return;
     };
-    let (input, shape) = tensor(&golden, "input");
+    let (input, shape) = tensor(golden, "input");
     let (h, w) = (shape[1], shape[2]);
     let got_hwc = net.estimate(input, h, w).unwrap_or_else(|e| panic!("{e}"));
-    let (want_chw, _) = tensor(&golden, "params");
+    let (want_chw, _) = tensor(golden, "params");
     let mut got_chw = vec![0.0; got_hwc.len()];
     for (i, v) in got_hwc.iter().enumerate() {
         let (pix, c) = (i / 64, i % 64);
@@ -148,6 +159,23 @@ fn estimate_matches_torch_golden_on_net_tiny_f32() {
 #[test]
 fn estimate_matches_torch_golden_on_net_tiny_f16() {
     estimate_case(Precision::F16, ESTIMATE_F16_TOL, ESTIMATE_F16_MEAN_TOL);
+}
+
+/// The shipped model (trained weights, and the head's input skip, which the random fixture
+/// lacks) against its own torch golden (`python -m train_py.golden --model ...`).
+#[test]
+fn estimate_matches_torch_golden_on_default_model_f32() {
+    let (weights, golden) = load_pair(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../models/default.safetensors"),
+        "net_default_golden.safetensors",
+    );
+    estimate_against(
+        &weights,
+        &golden,
+        Precision::F32,
+        ESTIMATE_F32_TOL,
+        ESTIMATE_F32_MEAN_TOL,
+    );
 }
 
 #[test]

@@ -415,9 +415,10 @@ fn estimate_impl<A: Acc>(
     };
     let est = weights.scope("est");
     ctx.rec(&est, "input", &x);
+    let photo = x;
     let c = cfg.width;
     let x = conv::<A>(
-        &x,
+        &photo,
         est.get("stem.weight", &[c, cfg.in_channels, 7, 7])?,
         c,
         7,
@@ -443,7 +444,9 @@ fn estimate_impl<A: Acc>(
     let x = ctx.basic::<A>(&x.concat(&skips[0]), &est.scope("dec4.0"), c, 1)?;
     let x = ctx.basic::<A>(&x, &est.scope("dec4.1"), c, 1)?;
     let pc = cfg.param_channels;
-    let x = conv::<A>(&x, est.get("head.weight", &[pc, c, 7, 7])?, pc, 7, 1, 3);
+    let x = if cfg.input_skip { x.concat(&photo) } else { x };
+    let head = est.get("head.weight", &[pc, cfg.head_in_channels(), 7, 7])?;
+    let x = conv::<A>(&x, head, pc, 7, 1, 3);
     ctx.rec(&est, "head", &x);
     let mut data = Vec::with_capacity(height * width * pc);
     for y in 0..height {

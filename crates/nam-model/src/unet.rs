@@ -706,6 +706,8 @@ impl Reverse {
 #[derive(Debug, Clone)]
 pub struct UNet {
     in_channels: usize,
+    /// The head sees `[decoder output, network input]` (`ModelConfig::input_skip`).
+    input_skip: bool,
     params: usize,
     eps: f32,
     slope: f32,
@@ -739,6 +741,7 @@ impl UNet {
         }
         Ok(Self {
             in_channels: cfg.in_channels,
+            input_skip: cfg.input_skip,
             params: cfg.param_channels,
             eps: cfg.norm_eps,
             slope: cfg.slopes.ha,
@@ -767,11 +770,14 @@ impl UNet {
             ),
             head: PackedConv::fused(
                 &[(
-                    est.get("head.weight", &[cfg.param_channels, c, 7, 7])?,
+                    est.get(
+                        "head.weight",
+                        &[cfg.param_channels, cfg.head_in_channels(), 7, 7],
+                    )?,
                     cfg.param_channels,
                     7,
                 )],
-                c,
+                cfg.head_in_channels(),
                 7,
                 1,
             ),
@@ -797,12 +803,13 @@ impl UNet {
             }
         }
         let (eps, sl) = (self.eps, self.slope);
-        let stem = self.stem.run(&Hwc {
+        let photo = Hwc {
             h: hp,
             w: wp,
             c: ci,
             d,
-        });
+        };
+        let stem = self.stem.run(&photo);
         // Encoder outputs e1..e4; e1..e3 are the decoder's skips.
         let mut skips: Vec<Hwc> = Vec::with_capacity(4);
         for pair in self.enc.chunks_exact(2) {
@@ -825,7 +832,11 @@ impl UNet {
             .dec4
             .1
             .run(&self.dec4.0.run(&concat(&x, &skips[0]), eps, sl), eps, sl);
-        let out = self.head.run(&x);
+        let out = if self.input_skip {
+            self.head.run(&concat(&x, &photo))
+        } else {
+            self.head.run(&x)
+        };
         let pc = self.params;
         let data = if (height, width) == (hp, wp) {
             out.d

@@ -238,15 +238,25 @@ const FAST_VS_REFERENCE_TOL: f32 = 1e-4;
 
 #[test]
 fn unet_fast_path_matches_reference_on_odd_size_with_random_weights() {
-    let w = Weights::random(ModelConfig::standard(8), 5).unwrap();
+    for input_skip in [false, true] {
+        let cfg = ModelConfig {
+            input_skip,
+            ..ModelConfig::standard(8)
+        };
+        unet_fast_vs_reference(&Weights::random(cfg, 5).unwrap());
+    }
+}
+
+fn unet_fast_vs_reference(w: &Weights) {
     let (h, wd) = (13, 22);
     let input: Vec<f32> = (0..4 * h * wd)
         .map(|i| ((i * 37 % 101) as f32) / 101.0)
         .collect();
-    let fast = UNet::new(&w).unwrap().estimate(&input, h, wd).unwrap();
-    let r = reference::estimate(&w, &input, h, wd, Accumulate::F64).unwrap();
+    let fast = UNet::new(w).unwrap().estimate(&input, h, wd).unwrap();
+    let r = reference::estimate(w, &input, h, wd, Accumulate::F64).unwrap();
     let e = max_rel_err(&fast.data, &r.data);
-    println!("unet fast vs reference: {e:e}");
+    let skip = w.config().input_skip;
+    println!("unet fast vs reference (input skip {skip}): {e:e}");
     assert!(e < FAST_VS_REFERENCE_TOL, "{e:e}");
 }
 

@@ -36,6 +36,11 @@ pub struct ModelConfig {
     pub width: usize,
     /// Network input channels (4: log RGB + half-vector z).
     pub in_channels: usize,
+    /// The U-Net head convolves `[decoder output, network input]` (`width + in_channels`
+    /// channels) instead of the decoder output alone: a direct path for the photo's
+    /// per-pixel colour (not in the paper; docs/FORMAT.md). Absent = `false`.
+    #[serde(default)]
+    pub input_skip: bool,
     /// Latent parameters per pixel (64).
     pub param_channels: usize,
     /// Input log compression.
@@ -72,6 +77,7 @@ impl ModelConfig {
             version: 1,
             width,
             in_channels: 4,
+            input_skip: false,
             param_channels: 64,
             log_mode: LogMode::Ldr,
             pe_octaves: 16,
@@ -100,6 +106,11 @@ impl ModelConfig {
     pub fn to_json(&self) -> String {
         // Serialising plain data to a String cannot fail.
         serde_json::to_string(self).unwrap_or_default()
+    }
+
+    /// Input channels of the U-Net head: `width`, plus `in_channels` with [`Self::input_skip`].
+    pub fn head_in_channels(&self) -> usize {
+        self.width + if self.input_skip { self.in_channels } else { 0 }
     }
 
     /// Length of the positional encoding: `9 + 18·pe_octaves`.

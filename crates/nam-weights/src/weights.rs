@@ -29,7 +29,10 @@ pub fn expected_tensors(cfg: &ModelConfig) -> Vec<(String, Vec<usize>)> {
     basic_block(&mut out, "est.dec3.1", 2 * c, 2 * c, 1);
     basic_block(&mut out, "est.dec4.0", 3 * c, c, 1);
     basic_block(&mut out, "est.dec4.1", c, c, 1);
-    out.push(("est.head.weight".into(), vec![cfg.param_channels, c, 7, 7]));
+    out.push((
+        "est.head.weight".into(),
+        vec![cfg.param_channels, cfg.head_in_channels(), 7, 7],
+    ));
     for (i, pair) in cfg.nd_enc.windows(2).enumerate() {
         out.push((format!("nd_enc.l{i}.weight"), vec![pair[1], pair[0]]));
     }

@@ -118,6 +118,36 @@ fn wrong_shape_is_an_error_with_expected_and_found() {
 }
 
 #[test]
+fn input_skip_widens_the_head_and_a_mismatch_is_a_shape_error() {
+    // Files from before the flag have no "input_skip" key: they read as false.
+    let mut v: serde_json::Value = serde_json::from_str(&tiny_config().to_json()).unwrap();
+    v.as_object_mut().unwrap().remove("input_skip");
+    assert!(!ModelConfig::from_json(&v.to_string()).unwrap().input_skip);
+    let skip = ModelConfig {
+        input_skip: true,
+        ..tiny_config()
+    };
+    let head = |cfg: &ModelConfig| {
+        expected_tensors(cfg)
+            .into_iter()
+            .find(|(n, _)| n == "est.head.weight")
+            .unwrap()
+            .1
+    };
+    assert_eq!(head(&tiny_config()), vec![64, 4, 7, 7]);
+    assert_eq!(head(&skip), vec![64, 8, 7, 7]);
+    // Weights with the skip under a config without it (or the reverse) are rejected.
+    let t = tensors_of(&Weights::random(skip.clone(), 2).unwrap());
+    let err = Weights::from_bytes(&write_safetensors(&t, &meta(&tiny_config())), "x").unwrap_err();
+    assert!(
+        matches!(&err, WeightsError::ShapeMismatch { tensor, .. } if tensor == "est.head.weight"),
+        "{err}"
+    );
+    let t = tensors_of(&Weights::random(tiny_config(), 2).unwrap());
+    assert!(Weights::from_bytes(&write_safetensors(&t, &meta(&skip)), "x").is_err());
+}
+
+#[test]
 fn scope_prefixes_names_and_checks_shapes() {
     let w = Weights::random(tiny_config(), 3).unwrap();
     let s = w.scope("est").scope("enc1.0");

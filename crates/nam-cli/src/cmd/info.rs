@@ -61,8 +61,14 @@ fn print_model(label: &str, model: &NeuralModel) {
     println!("stored dtype  {}", c.dtype);
     println!("parameters    {}", model.parameter_count());
     println!(
-        "U-Net width   C = {} (input {} channels)",
-        c.width, c.in_channels
+        "U-Net width   C = {} (input {} channels{})",
+        c.width,
+        c.in_channels,
+        if c.input_skip {
+            "; head also sees the input"
+        } else {
+            ""
+        }
     );
     println!("latent        {} params per pixel", c.param_channels);
     println!(
