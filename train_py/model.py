@@ -259,6 +259,8 @@ class UNet(nn.Module):
         e2 = self.enc2(e1)
         e3 = self.enc3(e2)
         e4 = self.enc4(e3)
+        #: The bottleneck before ``atan``, kept while training for ``train --bottleneck-limit``.
+        self.last_bottleneck = e4 if self.training else None
         x = torch.atan(e4)
         x = self.dec1(x)
         x = self.dec2(torch.cat([x, e3], dim=1))

@@ -13,6 +13,7 @@ from train_py.export import fold_state_dict, save_model, unfold_model
 from train_py.model import CONFIGS, NamModel
 from train_py.train import (
     TrainStep,
+    bottleneck_excess,
     chroma_l1,
     display_l1,
     exemplar_targets,
@@ -265,3 +266,20 @@ def test_input_skip_fine_tune_starts_from_what_the_file_computes():
     with torch.no_grad():
         torch.testing.assert_close(skip.estimate(x), m.estimate(x), rtol=0, atol=0)
     assert with_input_skip(state, had=True, wants=True) is state
+
+
+def test_bottleneck_penalty_acts_only_above_the_limit_and_only_while_training():
+    e4 = torch.tensor([0.0, -100.0, 300.0, -500.0], requires_grad=True)
+    loss = bottleneck_excess(e4, 200.0)
+    torch.testing.assert_close(loss, torch.tensor((100.0 + 300.0) / 4 / 200.0))
+    loss.backward()
+    torch.testing.assert_close(e4.grad, torch.tensor([0.0, 0.0, 1.0, -1.0]) / 4 / 200.0)
+    m = NamModel(CONFIGS["tiny"])
+    x = torch.rand(1, 4, 16, 16)
+    m.train()
+    m.estimate(x)
+    assert m.est.last_bottleneck.shape == (1, 32, 2, 2) and m.est.last_bottleneck.requires_grad
+    m.eval()
+    with torch.no_grad():
+        m.estimate(x)
+    assert m.est.last_bottleneck is None
