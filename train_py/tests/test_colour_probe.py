@@ -1,3 +1,5 @@
+import dataclasses
+
 import torch
 
 from train_py import gen
@@ -14,6 +16,16 @@ def test_probe_reports_every_stage_and_finds_the_colour_in_the_photo():
     # The photo carries the albedo's colour; no stage explains more than everything.
     assert rows[0][2] > 0.5
     assert all(r2 <= 1.0 + 1e-9 for _, _, r2 in rows)
+
+
+def test_probe_follows_the_input_skip_into_the_head():
+    torch.manual_seed(0)
+    model = NamModel(dataclasses.replace(CONFIGS["tiny"], input_skip=True)).eval()
+    with torch.no_grad():
+        model.est.head.weight.zero_()
+        model.est.head.weight[:3, 4:7, 3, 3] = torch.eye(3)  # params 0..2 = the log RGB input
+    rows = colour_probe(model, materials=4, size=32)
+    assert rows[-1][0] == "head (params)" and rows[-1][2] > 0.9 * rows[0][2]
 
 
 def test_probe_of_unrelated_features_is_near_zero_and_of_the_target_itself_is_one():
