@@ -44,7 +44,7 @@ def stage_features(model: NamModel, net_input: torch.Tensor) -> list[tuple[str, 
     for k, skip in zip((2, 3, 4), reversed(skips[:3]), strict=True):
         x = getattr(u, f"dec{k}")(torch.cat([x, skip], dim=1))
         out.append((f"dec{k}", x))
-    out.append(("head (params)", u.head(torch.cat([x, net_input], dim=1) if u.input_skip else x)))
+    out.append(("head (params)", u.head(u.head_input(x, net_input))))
     return out
 
 

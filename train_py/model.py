@@ -266,8 +266,12 @@ class UNet(nn.Module):
         x = self.dec2(torch.cat([x, e3], dim=1))
         x = self.dec3(torch.cat([x, e2], dim=1))
         x = self.dec4(torch.cat([x, e1], dim=1))
-        x = self.head(torch.cat([x, photo], dim=1) if self.input_skip else x)
+        x = self.head(self.head_input(x, photo))
         return x[..., :height, :width]
+
+    def head_input(self, decoded: torch.Tensor, photo: torch.Tensor) -> torch.Tensor:
+        """What the head convolves: the decoder output, then the (padded) input with the skip."""
+        return torch.cat([decoded, photo], dim=1) if self.input_skip else decoded
 
 
 def positional_encoding(dirs: torch.Tensor, octaves: int = PE_OCTAVES) -> torch.Tensor:

@@ -478,8 +478,7 @@ impl GpuNetwork {
             16 * cin * cout * hw_in + 9 * cout * cout * 4 * hw_in + 4 * cin * cout * hw_in
         };
         let (cin, pc) = (u64::from(u.in_channels), u64::from(u.param_channels));
-        let head_in = c + if u.input_skip { cin } else { 0 };
-        let mut macs = 49 * hw * (c * cin + head_in * pc);
+        let mut macs = 49 * hw * (c * cin + u64::from(u.head_in_channels()) * pc);
         let mut level = hw;
         for stage in &u.enc {
             macs += basic(&stage[0], level);
@@ -636,7 +635,7 @@ impl GpuNetwork {
             None,
             v(&output, 0)?,
             ConvShape {
-                cin: c + if u.input_skip { u.in_channels } else { 0 },
+                cin: u.head_in_channels(),
                 h,
                 w,
                 cout: u.param_channels,

@@ -58,6 +58,13 @@ pub(crate) struct UnetWeights {
     pub head: DeviceBuffer,
 }
 
+impl UnetWeights {
+    /// Input channels of the head: the width, plus the network input with the input skip.
+    pub fn head_in_channels(&self) -> u32 {
+        self.width + if self.input_skip { self.in_channels } else { 0 }
+    }
+}
+
 /// One bias-free linear layer `[out, in]` with the activation slope after it (`None`: none).
 #[derive(Debug)]
 pub(crate) struct Linear {
