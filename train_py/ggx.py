@@ -18,8 +18,18 @@ import math
 
 import torch
 
+#: Field of view of the default capture camera (the paper's training geometry), degrees.
+CAPTURE_FOV = 28.0
+
+
+def capture_distance(fov_degrees: float) -> float:
+    """Distance of a camera whose field of view ``fov_degrees`` is just filled by the [-1, 1]²
+    surface: ``1 / tan(fov / 2)``."""
+    return 1.0 / math.tan(math.radians(fov_degrees) / 2)
+
+
 #: Capture distance of the 28° field-of-view camera: the [-1, 1]² surface just fills the frame.
-CAPTURE_DISTANCE = 1.0 / math.tan(math.radians(14.0))
+CAPTURE_DISTANCE = capture_distance(CAPTURE_FOV)
 #: Lower bound of α = roughness² (roughness ≥ 0.01), as pbrt-v4 / Mitsuba 3 clamp it.
 ALPHA_MIN = 1e-4
 #: Lengths below this are treated as zero when normalising (guards 0/0 for opposite wi, wo).
@@ -117,17 +127,23 @@ def directions(
     return wi, wo, wh
 
 
-def capture_position(dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> torch.Tensor:
+def capture_position(
+    dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu", distance: float = CAPTURE_DISTANCE
+) -> torch.Tensor:
     """Camera and co-located light of the input photo, ``(0, 0, d)``."""
-    return torch.tensor([0.0, 0.0, CAPTURE_DISTANCE], dtype=dtype, device=device)
+    return torch.tensor([0.0, 0.0, distance], dtype=dtype, device=device)
 
 
 def capture_half_z(
-    height: int, width: int, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu"
+    height: int,
+    width: int,
+    dtype: torch.dtype = torch.float32,
+    device: torch.device | str = "cpu",
+    distance: float = CAPTURE_DISTANCE,
 ) -> torch.Tensor:
     """z of the capture half vector per pixel, ``d / sqrt(x² + y² + d²)``, shape ``[H, W]``."""
     pos = pixel_positions(height, width, torch.float64, device)
-    d = CAPTURE_DISTANCE
+    d = distance
     z = d / torch.sqrt(pos[..., 0] ** 2 + pos[..., 1] ** 2 + d * d)
     return z.to(dtype)
 
@@ -194,11 +210,11 @@ def ldr_capture(radiance: torch.Tensor) -> torch.Tensor:
     return srgb_decode(torch.round(srgb_encode(radiance) * 255.0) / 255.0)
 
 
-def network_input(photo: torch.Tensor, log_mode: str = "ldr") -> torch.Tensor:
+def network_input(photo: torch.Tensor, log_mode: str = "ldr", distance: float = CAPTURE_DISTANCE) -> torch.Tensor:
     """Network input ``[B, 4, H, W]`` from a linear photo ``[B, H, W, 3]`` (FORMAT.md).
 
     ch 0..3: ``ln(1 + clamp(rgb, 0, 0.999999))`` (``ldr``) or ``ln(1 + max(rgb, 0))`` (``hdr``);
-    ch 3: z of the capture half vector.
+    ch 3: z of the capture half vector of a camera at ``(0, 0, distance)``.
     """
     if log_mode == "ldr":
         rgb = torch.log1p(torch.clamp(photo, 0.0, LDR_MAX))
@@ -207,5 +223,5 @@ def network_input(photo: torch.Tensor, log_mode: str = "ldr") -> torch.Tensor:
     else:
         raise ValueError(f"log_mode must be 'ldr' or 'hdr', got {log_mode!r}")
     batch, height, width, _ = photo.shape
-    hz = capture_half_z(height, width, photo.dtype, photo.device).expand(batch, 1, height, width)
+    hz = capture_half_z(height, width, photo.dtype, photo.device, distance).expand(batch, 1, height, width)
     return torch.cat([rgb.permute(0, 3, 1, 2), hz], dim=1)

@@ -58,16 +58,24 @@ def hemisphere(gen: torch.Generator, batch: int, k: int, dtype=torch.float32) ->
 
 
 def mix_identity(
-    gen: torch.Generator, light: torch.Tensor, view: torch.Tensor, frac: float
+    gen: torch.Generator,
+    light: torch.Tensor,
+    view: torch.Tensor,
+    frac: float,
+    capture: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Replaces each exemplar ``[B, K]`` by the Identity (capture) light and view with probability
     ``frac``. Reflect targets are mostly dark, so a short run learns the input photo's colour only
-    slowly; a share of capture-geometry exemplars teaches it directly (opt-in, not in the paper)."""
+    slowly; a share of capture-geometry exemplars teaches it directly (opt-in, not in the paper).
+    ``capture``: the capture's (flash, camera) positions ``[3]``; default both at ``(0, 0, d)``."""
     if frac <= 0:
         return light, view
-    cam = torch.tensor([0.0, 0.0, CAPTURE_DISTANCE], dtype=light.dtype).expand_as(light)
+    cam = torch.tensor([0.0, 0.0, CAPTURE_DISTANCE], dtype=light.dtype)
+    flash, camera = capture if capture is not None else (cam, cam)
     mask = torch.rand(*light.shape[:2], 1, generator=gen) < frac
-    return torch.where(mask, cam, light), torch.where(mask, cam, view)
+    return torch.where(mask, flash.to(light).expand_as(light), light), torch.where(
+        mask, camera.to(view).expand_as(view), view
+    )
 
 
 PROTOCOLS = ("reflect", "identity", "hemisphere")

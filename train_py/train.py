@@ -30,7 +30,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
-from . import gen, ggx, protocols
+from . import capture, gen, ggx, materials, protocols
 from .evaluate import evaluate_protocols
 from .export import freeze_batchnorm, unfold_model
 from .model import CONFIGS, IN_CHANNELS, PARAM_CHANNELS, NamModel, positional_encoding, query_dirs
@@ -150,6 +150,8 @@ class TrainStep(nn.Module):
 
     def forward(self, net_input, k, frac, sel_gen, maps, light, view):
         params = self.model.estimate(net_input)
+        #: The step's parameter maps, kept for the latent regression (``train --latent-weight``).
+        self.last_params = params
         b, _, h, w = params.shape
         if self.shared_geometry:
             idx = select_shared_pixels(b, h * w, k, frac, sel_gen, params.device)
@@ -168,9 +170,52 @@ class TrainStep(nn.Module):
 
 
 def make_batch(seeds: list[int], size: int, device) -> tuple[dict, torch.Tensor]:
+    """Procedural maps and the network input of their ideal capture (28°, co-located, 8-bit)."""
     maps = gen.batch(seeds, size, device)
     photo = ggx.ldr_capture(ggx.render_capture(maps))
     return maps, ggx.network_input(photo, "ldr")
+
+
+def draw_batch(
+    seeds: list[int], size: int, device, bank: materials.MaterialBank | None, real_frac: float, phone: bool
+) -> tuple[dict, torch.Tensor, capture.Capture]:
+    """Maps, network input and capture of one step: a share ``real_frac`` of the materials are
+    augmented real sets (``bank``), the rest procedural; with ``phone`` the input is a phone-like
+    capture (random field of view and flash offset for the step, exposure, noise, clipping, JPEG)."""
+    rng = gen.Rng(seeds[0] * 31 + 7)
+    n_real = sum(rng.u() < real_frac for _ in seeds) if bank is not None else 0
+    parts = [materials.batch(bank, seeds[:n_real], size)] if n_real else []
+    if n_real < len(seeds):
+        parts.append(gen.batch(seeds[n_real:], size))
+    maps = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+    if not phone:
+        photo = ggx.ldr_capture(ggx.render_capture(maps))
+        return {k: v.to(device) for k, v in maps.items()}, ggx.network_input(photo, "ldr").to(device), capture.Capture()
+    cap = capture.Capture.random(rng.gen)
+    maps, net_input = capture.photograph(maps, cap, rng)
+    return {k: v.to(device) for k, v in maps.items()}, net_input.to(device), cap
+
+
+def load_decoder(path: str, into: NamModel | None) -> nn.Module:
+    """The map encoder ``E`` (frozen) of a pretrained decoder (``train_py.pretrain`` checkpoint), the
+    target of the latent regression; its ``nd_enc`` and ``render`` are copied ``into`` a model."""
+    from .pretrain import MapEncoder, load_state
+
+    saved = load_state(path)
+    for name in ("nd_enc", "render") if into is not None else ():
+        part = {k[len(name) + 1 :]: v for k, v in saved.items() if k.startswith(name + ".")}
+        getattr(into, name).load_state_dict(part)
+    encoder = MapEncoder()
+    encoder.load_state_dict({k[4:]: v for k, v in saved.items() if k.startswith("enc.")})
+    encoder.requires_grad_(False)
+    return encoder.eval()
+
+
+def latent_l1(params: torch.Tensor, encoder: nn.Module, maps: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Dense L1 between the U-Net's params ``[B, 64, H, W]`` and ``E(maps)`` at every pixel."""
+    with torch.no_grad():
+        target = encoder(maps).permute(0, 3, 1, 2)
+    return (params.float() - target).abs().mean()
 
 
 def lr_at(progress: float, lr: float, lr_final: float, warmup: float = 0.02) -> float:
@@ -194,6 +239,12 @@ def parse_args(argv=None):
     ap.add_argument("--config", default="small", choices=sorted(CONFIGS))
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--minutes", type=float, default=None, help="wall-clock budget; the schedule follows it")
+    ap.add_argument(
+        "--cpu-minutes",
+        type=float,
+        default=None,
+        help="CPU-time budget of this process (all threads; fair A/B runs on a shared machine)",
+    )
     ap.add_argument("--out", default="runs/small")
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
@@ -260,6 +311,30 @@ def parse_args(argv=None):
         "with --init-from a model without it, the new head weights start at zero",
     )
     ap.add_argument(
+        "--real-frac",
+        type=float,
+        default=0.0,
+        help="share of materials drawn from the real CC0 sets (materials/train, augmented) instead of "
+        "the procedural generator (0: procedural only)",
+    )
+    ap.add_argument("--materials-root", default=str(materials.DEFAULT_ROOT), help="folder holding train/")
+    ap.add_argument(
+        "--phone",
+        action="store_true",
+        help="phone-like captures: field of view 26-50 deg, flash off the lens axis, auto-exposure, "
+        "noise, clipping, 8-bit sRGB, sometimes JPEG (default: the ideal 28 deg co-located capture)",
+    )
+    ap.add_argument(
+        "--decoder",
+        default=None,
+        help="train_py.pretrain checkpoint: its ND_enc and M_render start the run, its map encoder E "
+        "is the target of --latent-weight",
+    )
+    ap.add_argument(
+        "--latent-weight", type=float, default=0.0, help="weight of the dense L1 to E(maps) (needs --decoder)"
+    )
+    ap.add_argument("--freeze-decoder", action="store_true", help="ND_enc and M_render are not trained")
+    ap.add_argument(
         "--no-straight-through",
         action="store_true",
         help="true LeakyReLU(0.001) gradient at the output (dies early; for comparisons only)",
@@ -288,12 +363,12 @@ def train(args) -> dict:
     model = NamModel(config).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     #: ``frozen_bn``: BatchNorms in eval mode throughout (a run started from a folded model file).
-    state = {"step": 0, "elapsed": 0.0, "loss": None, "history": [], "frozen_bn": False}
+    state = {"step": 0, "elapsed": 0.0, "cpu": 0.0, "loss": None, "history": [], "frozen_bn": False}
     if args.resume and ckpt_path.exists():
         ckpt = torch.load(ckpt_path, map_location=device, weights_only=False)
         model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
-        state = {k: ckpt[k] for k in state if k in ckpt}
+        state = {**state, **{k: ckpt[k] for k in state if k in ckpt}}
         if rank == 0:
             print(f"resumed {ckpt_path} at step {state['step']} ({state['elapsed'] / 60:.1f} min)", flush=True)
     elif args.init_from and Path(args.init_from).suffix == ".safetensors":
@@ -308,9 +383,16 @@ def train(args) -> dict:
         model.load_state_dict(torch.load(args.init_from, map_location=device, weights_only=False)["model"])
         if rank == 0:
             print(f"initialised from {args.init_from}", flush=True)
-    step_module: nn.Module = TrainStep(
-        model, straight_through=not args.no_straight_through, shared_geometry=args.shared_geometry
-    )
+    # A resumed run's checkpoint already holds the decoder; it only needs E.
+    encoder = load_decoder(args.decoder, None if state["step"] else model).to(device) if args.decoder else None
+    if args.latent_weight and encoder is None:
+        raise SystemExit("--latent-weight needs --decoder")
+    if args.freeze_decoder:
+        model.nd_enc.requires_grad_(False)
+        model.render.requires_grad_(False)
+    bank = materials.MaterialBank("train", Path(args.materials_root)) if args.real_frac > 0 else None
+    trainer = TrainStep(model, straight_through=not args.no_straight_through, shared_geometry=args.shared_geometry)
+    step_module: nn.Module = trainer
     if distributed:
         step_module = nn.parallel.DistributedDataParallel(step_module)
 
@@ -326,6 +408,7 @@ def train(args) -> dict:
     emit(f"# {json.dumps(vars(args))} world={world}")
     sizes = [int(v) for v in args.sizes.split(",") if v.strip()]
     start = time.time() - state["elapsed"]
+    cpu_start = time.process_time() - state["cpu"]
     last_ckpt = time.time()
     ema = state["loss"]
     step = state["step"]
@@ -334,6 +417,8 @@ def train(args) -> dict:
         progress = step / args.steps
         if args.minutes:
             progress = max(progress, elapsed / (60 * args.minutes))
+        if args.cpu_minutes:
+            progress = max(progress, (time.process_time() - cpu_start) / (60 * args.cpu_minutes))
         if progress >= 1.0:
             break
         lr = lr_at(progress, args.lr, args.lr_final)
@@ -345,9 +430,9 @@ def train(args) -> dict:
         if sizes:
             size = sizes[int(torch.randint(0, len(sizes), (), generator=data_gen))]
             outputs = max(1, round(args.outputs * (args.size / size) ** 2))
-        maps, net_input = make_batch(seeds, size, device)
+        maps, net_input, cap = draw_batch(seeds, size, device, bank, args.real_frac, args.phone)
         light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)
-        light, view = protocols.mix_identity(data_gen, light, view, args.identity_frac)
+        light, view = protocols.mix_identity(data_gen, light, view, args.identity_frac, (cap.flash(), cap.camera()))
         model.train()
         if state["frozen_bn"]:
             freeze_batchnorm(model)
@@ -360,6 +445,8 @@ def train(args) -> dict:
             loss = loss + args.display_weight * display_l1(pred.float(), target)
         if args.chroma_weight:
             loss = loss + args.chroma_weight * chroma_l1(pred.float(), target)
+        if args.latent_weight:
+            loss = loss + args.latent_weight * latent_l1(trainer.last_params, encoder, maps)
         if args.bottleneck_limit:
             loss = loss + bottleneck_excess(model.est.last_bottleneck, args.bottleneck_limit)
         opt.zero_grad(set_to_none=True)
@@ -373,7 +460,7 @@ def train(args) -> dict:
                 f"step {step:6d}  loss {val:.4f}  ema {ema:.4f}  lr {lr:.2e}  "
                 f"{time.time() - t0:.2f} s/step  {elapsed / 60:.1f} min"
             )
-        state.update(step=step, elapsed=time.time() - start, loss=ema)
+        state.update(step=step, elapsed=time.time() - start, cpu=time.process_time() - cpu_start, loss=ema)
         if args.val_every and step % args.val_every == 0 and rank == 0:
             res = validate(model, args)
             state["history"].append({"step": step, **res})
@@ -384,7 +471,10 @@ def train(args) -> dict:
     if rank == 0:
         state["minutes"] = state["elapsed"] / 60
         save_checkpoint(ckpt_path, model, opt, state)
-        emit(f"done: {step} steps, {state['elapsed'] / 60:.1f} min, ema loss {ema:.4f}; wrote {ckpt_path}")
+        emit(
+            f"done: {step} steps, {state['elapsed'] / 60:.1f} min ({state['cpu'] / 60:.1f} CPU-min), "
+            f"ema loss {ema:.4f}; wrote {ckpt_path}"
+        )
         log.close()
     if distributed:
         dist.destroy_process_group()

@@ -1,0 +1,157 @@
+"""Does a relit material move its highlight? A test on glossy variants of materials/test (issue 24).
+
+    python -m train_py.highlights --model models/default.safetensors [-o models/default.highlights.md]
+
+Each real test set gets a glossy variant (its roughness map rescaled so the median lies in
+``ROUGHNESS_RANGE``, specular at least ``SPECULAR_MIN``). Its ideal capture (28°, co-located, 8-bit
+sRGB: bright highlights clip) goes through the model, which then relights it with the light moved
+away from the camera (``MOVED_LIGHTS``, view at the camera). Two checks per (material, light):
+
+- **peak**: the relit highlight's peak (argmax of the luminance blurred with σ = ``PEAK_SIGMA`` px)
+  lies within ``PEAK_TOLERANCE_PX`` of the GGX truth's;
+- **clipped**: over the pixels the capture clipped, the mean relit radiance is within
+  ``CLIPPED_RATIO`` of the truth's (neither a dark blob nor the capture highlight left in place).
+
+The diffuse fit (Lambertian albedo from the photo) is scored the same way as a baseline.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from . import ggx, materials
+from .evaluate import diffuse_fit
+
+#: Median roughness of the glossy variant, uniform per material in this range.
+ROUGHNESS_RANGE = (0.1, 0.4)
+#: Smallest specular F0 of the glossy variant (dielectrics: 0.04 in most sets).
+SPECULAR_MIN = 0.04
+#: Light positions of the relights (surface units): moved 1.2 units off the camera axis.
+MOVED_LIGHTS = ((1.2, 0.0, 3.8), (-1.2, 0.0, 3.8), (0.0, 1.2, 3.8), (0.0, -1.2, 3.8))
+PEAK_SIGMA = 4.0
+PEAK_TOLERANCE_PX = 10.0
+CLIPPED_RATIO = (0.5, 2.0)
+#: An 8-bit capture value at or above this (any channel) counts as clipped.
+CLIP_LEVEL = 254.5 / 255
+
+
+def glossy(maps: dict[str, torch.Tensor], index: int) -> dict[str, torch.Tensor]:
+    """The glossy variant of test material ``index`` (deterministic)."""
+    g = torch.Generator().manual_seed(1000 + index)
+    target = ROUGHNESS_RANGE[0] + (ROUGHNESS_RANGE[1] - ROUGHNESS_RANGE[0]) * float(torch.rand((), generator=g))
+    rough = maps["roughness"] * (target / maps["roughness"].median())
+    return {**maps, "roughness": rough.clamp(0.02, 1), "specular": maps["specular"].clamp(min=SPECULAR_MIN)}
+
+
+def blurred_peak(radiance: torch.Tensor) -> tuple[float, float]:
+    """(row, col) of the maximum of the σ-blurred luminance of ``[H, W, 3]``."""
+    lum = radiance.mean(-1)[None, None]
+    r = int(3 * PEAK_SIGMA)
+    x = torch.arange(-r, r + 1, dtype=torch.float32)
+    k = torch.exp(-(x**2) / (2 * PEAK_SIGMA**2))
+    k = k / k.sum()
+    lum = F.conv2d(F.pad(lum, (r, r, 0, 0), mode="replicate"), k.view(1, 1, 1, -1))
+    lum = F.conv2d(F.pad(lum, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1))[0, 0]
+    idx = int(lum.argmax())
+    return divmod(idx, lum.shape[1])
+
+
+def score(pred: torch.Tensor, truth: torch.Tensor, clipped: torch.Tensor) -> tuple[float, float | None]:
+    """Peak distance (px) and clipped-region mean radiance ratio (None when nothing clipped)."""
+    (pr, pc), (tr, tc) = blurred_peak(pred), blurred_peak(truth)
+    dist = math.hypot(pr - tr, pc - tc)
+    if not clipped.any():
+        return dist, None
+    ratio = float(pred.mean(-1)[clipped].mean() / truth.mean(-1)[clipped].mean().clamp(min=1e-6))
+    return dist, ratio
+
+
+def run(model, size: int = 256) -> dict[str, dict[str, float]]:
+    """Pass rates and medians for the model (if given) and the diffuse fit."""
+    files = materials.list_files("test")
+    res: dict[str, list[tuple[float, float | None]]] = (
+        {"model": [], "diffuse fit": []} if model else {"diffuse fit": []}
+    )
+    cam = ggx.capture_position()
+    for i, path in enumerate(files):
+        maps = glossy(materials.load_maps(path, size), i)
+        photo = ggx.ldr_capture(ggx.render_capture(maps))
+        clipped = (ggx.srgb_encode(photo[0]) >= CLIP_LEVEL).any(-1)
+        params = None
+        if model is not None:
+            with torch.no_grad():
+                params = model.estimate(ggx.network_input(photo, model.config.log_mode))
+        for light_xyz in MOVED_LIGHTS:
+            light = torch.tensor(light_xyz).view(1, 1, 3)
+            view = cam.view(1, 1, 3)
+            truth = ggx.render_maps(maps, light, view)[0, 0]
+            wi, wo, _ = ggx.directions(light, view, size, size)
+            res["diffuse fit"].append(score(diffuse_fit(photo, wi)[0, 0], truth, clipped))
+            if params is not None:
+                with torch.no_grad():
+                    pred = ggx.from_log(model.relight_log(params, wi[:, 0], wo[:, 0]))[0]
+                res["model"].append(score(pred, truth, clipped))
+    out = {}
+    for method, rows in res.items():
+        dists = torch.tensor([d for d, _ in rows])
+        ratios = torch.tensor([r for _, r in rows if r is not None])
+        ok = (ratios >= CLIPPED_RATIO[0]) & (ratios <= CLIPPED_RATIO[1])
+        out[method] = {
+            "cases": len(rows),
+            "peak_within": float((dists <= PEAK_TOLERANCE_PX).float().mean()),
+            "peak_median_px": float(dists.median()),
+            "clipped_cases": len(ratios),
+            "clipped_within": float(ok.float().mean()) if len(ratios) else float("nan"),
+            "clipped_ratio_median": float(ratios.median()) if len(ratios) else float("nan"),
+        }
+    return out
+
+
+def markdown(res: dict, model_path: str | None, seconds: float) -> str:
+    lines = [
+        "# Highlight test: glossy variants of materials/test, light moved from the camera",
+        "",
+        f"{len(materials.list_files('test'))} test sets, roughness median {ROUGHNESS_RANGE[0]}–{ROUGHNESS_RANGE[1]}, "
+        f"256², 28° ideal 8-bit capture, {len(MOVED_LIGHTS)} moved lights each. Peak: blurred (σ {PEAK_SIGMA} px) "
+        f"luminance maximum within {PEAK_TOLERANCE_PX:.0f} px of the GGX truth's. Clipped: mean radiance over "
+        f"the pixels the capture clipped within {CLIPPED_RATIO[0]}–{CLIPPED_RATIO[1]}× the truth. Model: "
+        f"`{model_path}`. Command: `python -m train_py.highlights --model {model_path}` ({seconds:.0f} s).",
+        "",
+        "| method | peak within 10 px ↑ | median peak error (px) | clipped within 0.5–2× ↑ | median clipped ratio |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for m, r in res.items():
+        lines.append(
+            f"| {m} | {100 * r['peak_within']:.0f}% of {r['cases']} | {r['peak_median_px']:.1f} | "
+            f"{100 * r['clipped_within']:.0f}% of {r['clipped_cases']} | {r['clipped_ratio_median']:.2f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", help="model .safetensors (omit: diffuse fit only)")
+    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("-o", "--output")
+    args = ap.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    from .export import load_model
+
+    model = load_model(args.model) if args.model else None
+    t0 = time.time()
+    res = run(model)
+    md = markdown(res, args.model, time.time() - t0)
+    print(md)
+    if args.output:
+        Path(args.output).write_text(md)
+
+
+if __name__ == "__main__":
+    main()

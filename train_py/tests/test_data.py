@@ -1,0 +1,104 @@
+"""Real material sets, their augmentation, and phone-like captures."""
+
+import math
+
+import torch
+
+from train_py import capture, gen, ggx, materials
+from train_py.train import draw_batch, make_batch
+
+
+def test_orientations_turn_the_normals_with_the_image():
+    # Rotating/flipping the height field and then deriving normals must equal transforming the
+    # normals of the original: a wrong sign would light every augmented crop from the wrong side.
+    rng = gen.Rng(3)
+    height = gen.fbm(rng, 32, 4, 3)
+    maps = {"normal": gen.height_to_normal(height, 0.05), "roughness": height}
+    for k in range(4):
+        for flip in (False, True):
+            h = height.flip(1) if flip else height
+            want = gen.height_to_normal(torch.rot90(h, k, dims=(0, 1)), 0.05)
+            got = materials.orient(maps, k, flip)["normal"]
+            torch.testing.assert_close(got[1:-1, 1:-1], want[1:-1, 1:-1], atol=1e-6, rtol=0)
+    assert not torch.allclose(materials.orient(maps, 1, False)["normal"], maps["normal"])
+
+
+def test_real_crops_are_valid_maps_and_deterministic_per_seed():
+    bank = materials.MaterialBank("train", side=64)
+    assert len(bank) >= 50
+    a = materials.batch(bank, [5, 6, 7], 32)
+    b = materials.batch(bank, [5, 6, 7], 32)
+    for key, v in a.items():
+        torch.testing.assert_close(v, b[key], rtol=0, atol=0)
+        assert torch.isfinite(v).all()
+    assert a["diffuse"].shape == (3, 32, 32, 3) and a["roughness"].shape == (3, 32, 32)
+    assert a["diffuse"].min() >= 0 and a["diffuse"].max() <= 1
+    assert a["roughness"].min() >= 0.02 and a["roughness"].max() <= 1
+    torch.testing.assert_close(torch.linalg.vector_norm(a["normal"], dim=-1), torch.ones(3, 32, 32))
+    assert (a["normal"][..., 2] > 0).all()
+
+
+def test_test_split_is_disjoint_from_train():
+    train = {p.name for p in materials.list_files("train")}
+    test = {p.name for p in materials.list_files("test")}
+    assert test and not train & test
+    # Both tiles of one source asset stay in one split.
+    assert not {n.rsplit("_", 2)[0] for n in train} & {n.rsplit("_", 2)[0] for n in test if "_0_" in n or "_1_" in n}
+
+
+def test_pack_round_trips_at_the_requested_side(tmp_path):
+    materials.pack(tmp_path, 16)
+    assert len(materials.list_files("test", tmp_path)) == len(materials.list_files("test"))
+    packed = materials.load_panels(materials.list_files("train", tmp_path)[0])
+    assert packed.shape == (4, 16, 16, 3)
+
+
+def test_capture_distance_follows_the_field_of_view():
+    assert math.isclose(ggx.capture_distance(28.0), ggx.CAPTURE_DISTANCE, rel_tol=0, abs_tol=0)
+    d45 = ggx.capture_distance(45.0)
+    assert math.isclose(d45, 1 / math.tan(math.radians(22.5)), rel_tol=1e-15)
+    hz = ggx.capture_half_z(4, 4, torch.float64, distance=d45)
+    x = 2 * 0.5 / 4 - 1  # corner pixel centre
+    assert math.isclose(float(hz[0, 0]), d45 / math.sqrt(2 * x * x + d45 * d45), rel_tol=1e-12)
+    inp = ggx.network_input(torch.full((1, 4, 4, 3), 0.5), "ldr", d45)
+    torch.testing.assert_close(inp[0, 3], hz.float())
+
+
+def test_phone_capture_clips_quantises_and_keeps_maps_consistent():
+    rng = gen.Rng(9)
+    maps = gen.batch([1, 2], 32)
+    cap = capture.Capture(fov=45.0, flash_x=0.1, flash_y=-0.05)
+    exposed, net_input = capture.photograph(maps, cap, rng)
+    assert net_input.shape == (2, 4, 32, 32)
+    photo = torch.expm1(net_input[:, :3])
+    assert photo.max() <= ggx.LDR_MAX + 1e-6 and photo.min() >= 0
+    codes = ggx.srgb_encode(photo) * 255
+    assert (codes - codes.round()).abs().max() < 1e-3  # 8-bit values
+    torch.testing.assert_close(net_input[0, 3], ggx.capture_half_z(32, 32, distance=cap.distance))
+    for key in ("diffuse", "specular"):
+        assert exposed[key].min() >= 0 and exposed[key].max() <= 1
+        ratio = exposed[key].sum() / maps[key].sum()
+        assert 1 / capture.EXPOSURE_LIMIT - 1e-4 <= ratio <= capture.EXPOSURE_LIMIT + 1e-4
+    assert exposed["roughness"] is maps["roughness"]
+
+
+def test_random_captures_cover_the_field_of_view_range_and_flash_offsets():
+    g = torch.Generator().manual_seed(0)
+    caps = [capture.Capture.random(g) for _ in range(200)]
+    fovs = torch.tensor([c.fov for c in caps])
+    offsets = torch.tensor([math.hypot(c.flash_x, c.flash_y) for c in caps])
+    assert fovs.min() >= capture.FOV_RANGE[0] and fovs.max() <= capture.FOV_RANGE[1]
+    assert fovs.max() - fovs.min() > 0.8 * (capture.FOV_RANGE[1] - capture.FOV_RANGE[0])
+    assert offsets.max() <= capture.FLASH_OFFSET_MAX and offsets.max() > 0.5 * capture.FLASH_OFFSET_MAX
+
+
+def test_draw_batch_mixes_real_and_procedural_materials():
+    bank = materials.MaterialBank("train", side=64)
+    maps, net_input, cap = draw_batch([3, 4, 5, 6], 32, "cpu", bank, 0.5, True)
+    assert net_input.shape == (4, 4, 32, 32) and maps["normal"].shape == (4, 32, 32, 3)
+    assert capture.FOV_RANGE[0] <= cap.fov <= capture.FOV_RANGE[1]
+    plain, plain_input, plain_cap = draw_batch([3, 4], 32, "cpu", None, 0.0, False)
+    assert plain_cap == capture.Capture()
+    want_maps, want_input = make_batch([3, 4], 32, "cpu")
+    torch.testing.assert_close(plain["diffuse"], want_maps["diffuse"])
+    torch.testing.assert_close(plain_input, want_input)

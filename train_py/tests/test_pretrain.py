@@ -1,0 +1,68 @@
+"""Decoder pretraining (stage 1), the latent regression (stage 2) and the highlight test."""
+
+import torch
+
+from train_py import ggx, highlights, pretrain
+from train_py.model import CONFIGS, NamModel
+from train_py.train import latent_l1, load_decoder
+
+
+def test_mirror_queries_sit_near_the_mirror_direction_and_all_are_unit_upper():
+    gen = torch.Generator().manual_seed(0)
+    maps = pretrain.random_maps(gen, 4000)
+    wi, wo = pretrain.random_directions(gen, maps)
+    torch.testing.assert_close(torch.linalg.vector_norm(wi, dim=-1), torch.ones(4000))
+    assert (wi[:, 2] >= 0).all() and (wo[:, 2] >= 0).all()
+    n = maps["normal"]
+    mirror = ggx.normalize(2 * ggx.dot(wo, n)[:, None] * n - wo)
+    close = ggx.dot(wi, mirror) > 0.95
+    share = float(close.float().mean())
+    assert pretrain.MIRROR_FRAC * 0.7 < share < pretrain.MIRROR_FRAC + 0.2, share
+    assert maps["roughness"].min() >= pretrain.ROUGHNESS_MIN * 0.999
+
+
+def test_a_few_pretraining_steps_lower_the_held_out_error(tmp_path):
+    torch.manual_seed(0)
+    decoder = pretrain.Decoder()
+    val = pretrain.held_out(2048, seed=3)
+    before = pretrain.evaluate(decoder, val)["log_l1"]
+    opt = torch.optim.Adam(decoder.parameters(), lr=1e-3)
+    gen = torch.Generator().manual_seed(1)
+    for _ in range(40):
+        maps, dirs, target = pretrain.queries(gen, 1024)
+        loss = (decoder(maps, dirs) - target).abs().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    after = pretrain.evaluate(decoder, val)
+    assert after["log_l1"] < 0.7 * before, (before, after)
+    assert after["diffuse_only"] > 0
+
+
+def test_exported_decoder_starts_the_model_and_gives_the_latent_target(tmp_path):
+    decoder = pretrain.Decoder()
+    opt = torch.optim.Adam(decoder.parameters())
+    pretrain.save(tmp_path / "ckpt.pt", decoder, opt, {"step": 7, "elapsed": 60.0})
+    pretrain.export(tmp_path / "ckpt.pt", str(tmp_path / "decoder.safetensors"))
+    model = NamModel(CONFIGS["tiny"])
+    encoder = load_decoder(str(tmp_path / "decoder.safetensors"), model)
+    for name in ("nd_enc", "render"):
+        for key, v in getattr(model, name).state_dict().items():
+            torch.testing.assert_close(v, decoder.state_dict()[f"{name}.{key}"])
+    maps = {k: v.reshape(1, 4, 4, *v.shape[1:]) for k, v in pretrain.random_maps(torch.Generator(), 16).items()}
+    target = encoder(maps).permute(0, 3, 1, 2)
+    assert float(latent_l1(target, encoder, maps)) == 0.0
+    assert float(latent_l1(target + 0.5, encoder, maps)) == 0.5
+    assert not any(p.requires_grad for p in encoder.parameters())
+
+
+def test_blurred_peak_finds_a_moved_highlight_and_the_clipped_ratio():
+    img = torch.zeros(64, 64, 3)
+    img[40, 12] = 50.0
+    img += 0.1
+    assert highlights.blurred_peak(img) == (40, 12)
+    clipped = torch.zeros(64, 64, dtype=torch.bool)
+    clipped[:4, :4] = True
+    dist, ratio = highlights.score(img * 2, img, clipped)
+    assert dist == 0 and abs(ratio - 2) < 1e-5
+    assert highlights.score(img, img, torch.zeros_like(clipped))[1] is None
