@@ -1,5 +1,7 @@
 //! Value parsers shared by subcommands (clap `value_parser`s).
 
+use nam::geometry::FOV_RANGE_DEG;
+
 /// Largest accepted coordinate magnitude in `x,y,z` values (surface-frame units: the material
 /// spans [−1, 1]²). The networks compute directions in f32, where `|v|²` overflows near 1.8e19
 /// and a light at 1e9 is already within 1e-9 rad of a directional light; farther values are
@@ -66,6 +68,23 @@ pub fn parse_non_negative(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
+/// Parses a camera field of view in degrees, within [`FOV_RANGE_DEG`] (5–120, inclusive).
+pub fn parse_fov(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{} is not a number of degrees", echo(s)))?;
+    if !FOV_RANGE_DEG.contains(&v) {
+        return Err(format!(
+            "the field of view must be between {} and {} degrees, got {}",
+            FOV_RANGE_DEG.start(),
+            FOV_RANGE_DEG.end(),
+            echo(s)
+        ));
+    }
+    Ok(v)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -89,6 +108,19 @@ mod tests {
         for bad in ["-1", "nan", "inf", "x"] {
             assert!(parse_non_negative(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn fov_accepts_5_to_120_degrees_only() {
+        assert_eq!(parse_fov(" 45 "), Ok(45.0));
+        assert_eq!(parse_fov("5"), Ok(5.0));
+        assert_eq!(parse_fov("120"), Ok(120.0));
+        for bad in ["0", "4.99", "120.5", "500", "-28", "nan", "inf"] {
+            let e = parse_fov(bad).err().unwrap_or_default();
+            assert!(e.contains("between 5 and 120 degrees"), "{bad}: {e}");
+        }
+        let e = parse_fov("wide").err().unwrap_or_default();
+        assert!(e.contains("not a number of degrees"), "{e}");
     }
 
     #[test]

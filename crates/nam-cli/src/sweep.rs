@@ -6,7 +6,6 @@ use crate::args::parse_vec3;
 use anyhow::{Context, Result, bail};
 use nam_ggx::RgbImage;
 use nam_ggx::color::srgb_encode;
-use nam_ggx::geometry::CAPTURE_DISTANCE;
 use std::path::{Path, PathBuf};
 
 /// Most frames one run may render (a typo such as `orbit:100000` should not run for hours).
@@ -22,14 +21,16 @@ pub enum LightSpec {
     /// A single position (or direction with `--directional`) `x,y,z`.
     At([f64; 3]),
     /// `count` positions evenly spaced in azimuth (starting at +x, counter-clockwise seen
-    /// from above) at `elevation_deg` above the plane and `distance` from the origin.
+    /// from above) at `elevation_deg` above the plane and `distance` from the origin (by
+    /// default the capture camera's: [`expand`] takes it).
     Orbit {
         /// Number of frames.
         count: usize,
         /// Elevation above the surface plane, degrees in (0, 90].
         elevation_deg: f64,
-        /// Distance from the material's centre (surface-frame units; the material spans [−1, 1]²).
-        distance: f64,
+        /// Distance from the material's centre (surface-frame units; the material spans
+        /// [−1, 1]²); `None`: the capture distance.
+        distance: Option<f64>,
     },
 }
 
@@ -44,18 +45,19 @@ pub fn parse_light_spec(s: &str) -> Result<LightSpec, String> {
         .and_then(|n| n.parse().ok())
         .filter(|n| (1..=MAX_FRAMES).contains(n))
         .ok_or_else(|| format!("orbit:N needs 1 ≤ N ≤ {MAX_FRAMES}, got '{s}'"))?;
-    let mut number = |name: &str, default: f64| -> Result<f64, String> {
-        match parts.next() {
-            None => Ok(default),
-            Some(v) => v
-                .parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite())
-                .ok_or_else(|| format!("orbit {name} '{v}' is not a finite number")),
-        }
+    let mut number = |name: &str| -> Result<Option<f64>, String> {
+        parts
+            .next()
+            .map(|v| {
+                v.parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| format!("orbit {name} '{v}' is not a finite number"))
+            })
+            .transpose()
     };
-    let elevation_deg = number("elevation", ORBIT_ELEVATION_DEG)?;
-    let distance = number("distance", CAPTURE_DISTANCE)?;
+    let elevation_deg = number("elevation")?.unwrap_or(ORBIT_ELEVATION_DEG);
+    let distance = number("distance")?;
     if parts.next().is_some() {
         return Err(format!(
             "expected orbit:N[,elevation°[,distance]], got '{s}'"
@@ -66,8 +68,8 @@ pub fn parse_light_spec(s: &str) -> Result<LightSpec, String> {
             "orbit elevation must be in (0, 90] degrees (above the surface), got {elevation_deg}"
         ));
     }
-    if distance <= 0.0 {
-        return Err(format!("orbit distance must be > 0, got {distance}"));
+    if let Some(d) = distance.filter(|&d| d <= 0.0) {
+        return Err(format!("orbit distance must be > 0, got {d}"));
     }
     Ok(LightSpec::Orbit {
         count,
@@ -76,8 +78,9 @@ pub fn parse_light_spec(s: &str) -> Result<LightSpec, String> {
     })
 }
 
-/// All light positions of the specs, in order.
-pub fn expand(specs: &[LightSpec]) -> Result<Vec<[f64; 3]>> {
+/// All light positions of the specs, in order; orbits without a distance circle at
+/// `capture_distance`, the photo camera's distance from the material's centre.
+pub fn expand(specs: &[LightSpec], capture_distance: f64) -> Result<Vec<[f64; 3]>> {
     let mut out = Vec::new();
     for spec in specs {
         match *spec {
@@ -87,6 +90,7 @@ pub fn expand(specs: &[LightSpec]) -> Result<Vec<[f64; 3]>> {
                 elevation_deg,
                 distance,
             } => {
+                let distance = distance.unwrap_or(capture_distance);
                 let el = elevation_deg.to_radians();
                 out.extend((0..count).map(|k| {
                     let phi = std::f64::consts::TAU * k as f64 / count as f64;
@@ -177,7 +181,7 @@ mod tests {
     #[test]
     fn orbit_positions_lie_on_the_requested_circle() {
         let spec = parse_light_spec("orbit:8,30,2").unwrap();
-        let ps = expand(&[spec]).unwrap();
+        let ps = expand(&[spec], 4.0).unwrap();
         assert_eq!(ps.len(), 8);
         for p in &ps {
             let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
@@ -188,6 +192,18 @@ mod tests {
             (ps[2][1] - 2.0 * 30f64.to_radians().cos()).abs() < 1e-12,
             "quarter turn → +y"
         );
+    }
+
+    #[test]
+    fn orbit_without_a_distance_circles_at_the_capture_distance() {
+        let spec = parse_light_spec("orbit:3").unwrap();
+        use nam_ggx::geometry::{CAPTURE_DISTANCE, capture_distance};
+        for d in [CAPTURE_DISTANCE, capture_distance(45.0)] {
+            for p in expand(&[spec], d).unwrap() {
+                let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                assert!((r - d).abs() < 1e-12, "{r} vs {d}");
+            }
+        }
     }
 
     #[test]

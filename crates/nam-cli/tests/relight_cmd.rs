@@ -8,9 +8,9 @@ use common::{expect_failure, ok, root, run, s, tmp};
 use std::path::{Path, PathBuf};
 
 /// CPU and GPU (lavapipe) renders of the same photo agree to this relative error. The networks
-/// agree to 3e-5 on identical inputs, but the CPU point-light path derives directions in f32
-/// per pixel while the GPU path gets f64-derived directions rounded to f32, and the top
-/// positional-encoding octave (2^15) turns that 1e-7 rounding into ~1e-2 phase differences
+/// agree to 3e-5 on identical inputs and both paths now derive the same f32 directions
+/// (`Directions::at`); the bound dates from when the GPU got f64-derived directions rounded to
+/// f32, which the top positional-encoding octave (2^15) turned into ~1e-2 phase differences
 /// (the facade's path tests use the same 2e-2).
 const GPU_REL_TOL: f32 = 2e-2;
 
@@ -456,5 +456,97 @@ fn over_exposed_photo_gets_a_note_and_a_normal_one_does_not() {
         let err = relight_notes(photo, &out);
         assert_eq!(err.contains("100.0% of the pixels"), noted, "{err}");
         assert_eq!(err.contains("saturated"), noted, "{err}");
+    }
+}
+
+#[test]
+fn fov_outside_5_to_120_degrees_is_refused_without_output() {
+    let dir = tmp();
+    let photo = small_photo(dir.path(), 16);
+    let (png, nam) = (dir.path().join("out.png"), dir.path().join("out.nam"));
+    for fov in ["0", "500"] {
+        let relight = [
+            "relight",
+            s(&photo),
+            "--light",
+            "1,1,3",
+            "--fov",
+            fov,
+            "-o",
+            s(&png),
+        ];
+        let estimate = ["estimate", s(&photo), "--fov", fov, "-o", s(&nam)];
+        for (args, out) in [(&relight[..], &png), (&estimate[..], &nam)] {
+            let needle =
+                format!("the field of view must be between 5 and 120 degrees, got \"{fov}\"");
+            expect_failure(args, out, &needle);
+        }
+    }
+}
+
+#[test]
+fn relight_with_fov_45_runs_on_the_example_photo() {
+    let dir = tmp();
+    let out = dir.path().join("relit45.png");
+    let photo = root().join("assets/example_photo.png");
+    let light = ["--light", "1.5,1,3.5", "--backend", "cpu"];
+    ok(&[
+        &["relight", s(&photo), "--fov", "45", "-o", s(&out)][..],
+        &light,
+    ]
+    .concat());
+    let img = image::open(&out)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .to_rgb8();
+    assert_eq!(img.dimensions(), (256, 256));
+    let mean = img.as_raw().iter().map(|&v| f64::from(v)).sum::<f64>() / img.as_raw().len() as f64;
+    assert!(mean > 5.0 && mean < 250.0, "implausible mean code {mean}");
+}
+
+#[test]
+fn fov_moves_the_capture_camera_for_estimate_and_the_default_view() {
+    let dir = tmp();
+    let photo = small_photo(dir.path(), 16);
+    let exr = |name: &str| dir.path().join(name);
+    let light = ["--light", "0.5,-1,3", "--backend", "cpu"];
+    let relight = |input: &Path, out: &Path, extra: &[&str]| {
+        ok(&[&["relight", s(input), "-o", s(out)][..], &light, extra].concat());
+        read_exr(out)
+    };
+    let fov28 = relight(&photo, &exr("28.exr"), &[]);
+    let fov45 = relight(&photo, &exr("45.exr"), &["--fov", "45"]);
+    assert_ne!(
+        fov28, fov45,
+        "--fov 45 must change the estimate and the view"
+    );
+    // The default view follows --fov: (0, 0, 1/tan 22.5°) = (0, 0, 1 + √2).
+    let view = format!("0,0,{}", nam::geometry::capture_distance(45.0));
+    let explicit = relight(&photo, &exr("v.exr"), &["--fov", "45", "--view", &view]);
+    assert_eq!(fov45, explicit);
+    // A material estimated with --fov 45 relights like the photo with --fov 45.
+    let nam = exr("m.nam");
+    ok(&[
+        "estimate",
+        s(&photo),
+        "--fov",
+        "45",
+        "-o",
+        s(&nam),
+        "--backend",
+        "cpu",
+    ]);
+    assert_eq!(relight(&nam, &exr("n.exr"), &["--fov", "45"]), fov45);
+}
+
+#[test]
+fn help_documents_fov() {
+    for cmd in ["relight", "estimate"] {
+        let help = ok(&[cmd, "--help"]);
+        assert!(
+            help.contains("--fov <DEGREES>")
+                && help.contains("field of view of the camera that took the photo, in degrees")
+                && help.contains("[default: 28]"),
+            "{cmd}: {help}"
+        );
     }
 }

@@ -3,7 +3,7 @@
 
 use crate::error::{EvalError, Result};
 use nam_ggx::color::{srgb_decode, srgb_encode};
-use nam_ggx::geometry::{Light, View, capture_position};
+use nam_ggx::geometry::{CAPTURE_DISTANCE, Light, View, capture_position};
 use nam_ggx::{LightView, Protocol, RenderSettings, SvbrdfMaps, render, sample_protocol};
 use std::path::{Path, PathBuf};
 
@@ -54,7 +54,7 @@ pub fn ldr_capture(radiance: &[f32]) -> Vec<f32> {
 
 /// The flash photo of `maps` (see [`Material::photo`]).
 pub fn capture_photo(maps: &SvbrdfMaps) -> Result<Vec<f32>> {
-    let cam = capture_position();
+    let cam = capture_position(CAPTURE_DISTANCE);
     let hdr = render::<f32>(
         maps,
         &RenderSettings::new(Light::Point(cam), View::Point(cam)),

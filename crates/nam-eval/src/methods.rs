@@ -6,12 +6,11 @@
 
 use crate::error::{EvalError, Result};
 use crate::heldout::Material;
-use nam::geometry::{Light, View, capture_half_z};
+use nam::geometry::{CAPTURE_DISTANCE, Light, View, capture_half_z, pixel_position};
 use nam::{NeuralMaterial, NeuralModel, Photo, Scene, relight};
 use nam_ggx::{LightView, SvbrdfMaps, render};
-use nam_model::geometry::{direction, pixel_position};
 use nam_model::reference::{self, Accumulate};
-use nam_model::{ParamMap, RenderNet};
+use nam_model::{ParamMap, RenderNet, Source};
 use rayon::prelude::*;
 use std::path::PathBuf;
 
@@ -299,7 +298,7 @@ impl Prepared {
             (MethodSpec::DiffuseFit, _) => {
                 let mut albedo = m.photo.clone();
                 for (p, px) in albedo.chunks_exact_mut(3).enumerate() {
-                    let c = capture_half_z(p / side, p % side, side, side) as f32;
+                    let c = capture_half_z(p / side, p % side, side, side, CAPTURE_DISTANCE) as f32;
                     for v in px {
                         *v /= c;
                     }
@@ -329,11 +328,11 @@ impl Prepared {
         match est {
             Estimate::Photo(p) => Ok(p.clone()),
             Estimate::Albedo(a) => {
-                let l = to32(lv.light);
+                let light = Source::Point(to32(lv.light));
                 let mut out = a.clone();
                 for (p, px) in out.chunks_exact_mut(3).enumerate() {
-                    let wi = direction(pixel_position(p / side, p % side, side, side), l);
-                    let cos = wi[2].max(0.0);
+                    let wi = light.direction_from(pixel_position(p / side, p % side, side, side));
+                    let cos = wi.z.max(0.0);
                     for v in px {
                         *v *= cos;
                     }
@@ -377,7 +376,7 @@ impl Prepared {
                     .model
                     .as_ref()
                     .ok_or_else(|| EvalError::Option("model not loaded".into()))?;
-                let (l, v) = (to32(lv.light), to32(lv.view));
+                let (l, v) = (Source::Point(to32(lv.light)), Source::Point(to32(lv.view)));
                 let c = map.channels;
                 let px: Result<Vec<[f32; 3]>> = (0..side * side)
                     .into_par_iter()
@@ -386,8 +385,8 @@ impl Prepared {
                         let t = reference::render(
                             model.weights(),
                             &map.data[p * c..(p + 1) * c],
-                            direction(pos, l),
-                            direction(pos, v),
+                            l.direction_from(pos).to_array(),
+                            v.direction_from(pos).to_array(),
                             Accumulate::F32,
                         )?;
                         Ok(t.radiance)

@@ -12,6 +12,7 @@
 //! (`z > 0`, which the CLI enforces) ωi and ωo are above the macro surface anyway.
 
 use crate::float::Float;
+use crate::geometry::half_vector;
 use crate::vec3::Vec3;
 
 /// Smallest GGX α: roughness below 0.01 is treated as 0.01 (DESIGN §7). Keeps D finite
@@ -88,13 +89,6 @@ pub fn g1_schlick<T: Float>(nox: T, alpha: T) -> T {
 pub fn fresnel_sg<T: Float>(f0: T, voh: T) -> T {
     let e = (T::from_f64(FRESNEL_SG_A) * voh + T::from_f64(FRESNEL_SG_B)) * voh;
     f0 + (T::ONE - f0) * e.exp2()
-}
-
-/// The half vector `normalize(ωi + ωo)`, or the macro normal (0, 0, 1) when ωi = −ωo
-/// (there the BRDF is 0 anyway, because n·ωi and n·ωo cannot both be positive).
-#[inline]
-pub fn half_vector<T: Float>(wi: Vec3<T>, wo: Vec3<T>) -> Vec3<T> {
-    (wi + wo).try_normalize().unwrap_or_else(Vec3::up)
 }
 
 /// Cosine-weighted radiance ratio `R = (ρd/π + D·G·F / (4·NoL·NoV)) · NoL · π` of one point,

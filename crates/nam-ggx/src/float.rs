@@ -32,6 +32,8 @@ pub trait Float:
     fn from_f64(v: f64) -> Self;
     /// Widens to `f64` (exact).
     fn to_f64(self) -> f64;
+    /// Absolute value.
+    fn abs(self) -> Self;
     /// Square root.
     fn sqrt(self) -> Self;
     /// 2^self.
@@ -67,6 +69,10 @@ macro_rules! impl_float {
             #[inline]
             fn to_f64(self) -> f64 {
                 f64::from(self)
+            }
+            #[inline]
+            fn abs(self) -> Self {
+                <$t>::abs(self)
             }
             #[inline]
             fn sqrt(self) -> Self {

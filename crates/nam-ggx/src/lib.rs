@@ -1,7 +1,8 @@
 //! `nam-ggx` — the analytic GGX SVBRDF reference of the nam project (DESIGN.md §3, §7, §8).
 //!
 //! - [`maps`]: SVBRDF parameter maps and the 4-panel / separate-file formats.
-//! - [`geometry`]: pixel positions, the capture camera, per-pixel ωi/ωo/ωh.
+//! - [`geometry`]: pixel positions, the capture camera, per-pixel ωi/ωo/ωh: the one home of
+//!   the surface frame, which the networks (`nam-model`) use in f32.
 //! - [`brdf`]: pointwise GGX, generic over `f32`/`f64` ([`Float`]).
 //! - [`mod@render`]: a whole map for one light and viewer (rayon).
 //! - [`color`]: log compression, sRGB and gamma curves, the display transform.

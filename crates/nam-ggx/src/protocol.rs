@@ -4,7 +4,7 @@
 //! The random stream is PCG-64 (`rand_pcg::Pcg64`) seeded with `seed_from_u64(seed)`; normal
 //! variates use Box–Muller on two uniforms, so results are identical on every platform.
 
-use crate::geometry::CAPTURE_DISTANCE;
+use crate::geometry::{CAPTURE_DISTANCE, capture_position, direction};
 use crate::vec3::{Vec3, Vec3d};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -86,7 +86,7 @@ impl ProtocolSampler {
     pub fn sample(&mut self) -> LightView {
         match self.protocol {
             Protocol::Identity => {
-                let c = Vec3::new(0.0, 0.0, CAPTURE_DISTANCE);
+                let c = capture_position(CAPTURE_DISTANCE);
                 LightView { light: c, view: c }
             }
             Protocol::Hemisphere => {
@@ -109,8 +109,8 @@ impl ProtocolSampler {
         let py = 2.0 * rng.random::<f64>() - 1.0 + REFLECT_SIGMA * std_normal(rng);
         let p = Vec3::new(px, py, 0.0);
         let view = uniform_hemisphere(rng) * CAPTURE_DISTANCE;
-        // view.z > 0 (see uniform_hemisphere) and p.z = 0, so v − p is never zero.
-        let to_view = (view - p).try_normalize().unwrap_or_else(Vec3::up);
+        // view.z > 0 (see uniform_hemisphere) and p.z = 0, so v − p is never degenerate.
+        let to_view = direction(p, view);
         let to_light = Vec3::new(-to_view.x, -to_view.y, to_view.z);
         let dist = (REFLECT_SIGMA * std_normal(rng)).abs() + REFLECT_MIN_LIGHT_DISTANCE;
         LightView {

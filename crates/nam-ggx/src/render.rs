@@ -3,7 +3,7 @@
 use crate::brdf::eval;
 use crate::error::{GgxError, Result};
 use crate::float::Float;
-use crate::geometry::{Light, View, directions_at, pixel_position};
+use crate::geometry::{Light, Source, View, directions_at, pixel_position};
 use crate::imageio::RgbImage;
 use crate::maps::SvbrdfMaps;
 use crate::vec3::Vec3d;
@@ -34,25 +34,28 @@ impl RenderSettings {
     }
 
     /// Checks that vectors and intensity are finite, intensity ≥ 0, and directional vectors
-    /// non-zero. (Lights and viewers below the surface are allowed here; they render black.)
+    /// not degenerate (|v| ≥ 1e-6, [`DIRECTION_GUARD`](crate::geometry::DIRECTION_GUARD):
+    /// shorter, the networks would light every pixel from straight above). Lights and viewers
+    /// below the surface are allowed here; they render black.
     pub fn validate(&self) -> Result<()> {
-        let finite = |v: Vec3d| v.is_finite();
-        let (l, ldir) = match self.light {
-            Light::Point(p) => (p, false),
-            Light::Directional(d) => (d, true),
-        };
-        let (v, vdir) = match self.view {
-            View::Point(p) => (p, false),
-            View::Orthographic(d) => (d, true),
-        };
-        if !finite(l) || !finite(v) {
+        let (light, view) = (self.light.source::<f64>(), self.view.source::<f64>());
+        if !light
+            .coordinates()
+            .iter()
+            .chain(&view.coordinates())
+            .all(|x| x.is_finite())
+        {
             return Err(GgxError::InvalidArgument(
                 "light and view must have finite coordinates".into(),
             ));
         }
-        if (ldir && l.try_normalize().is_none()) || (vdir && v.try_normalize().is_none()) {
+        let origin = Vec3d::zero();
+        let degenerate = |s: Source<f64>| {
+            matches!(s, Source::Distant(_)) && s.try_direction_from(origin).is_none()
+        };
+        if degenerate(light) || degenerate(view) {
             return Err(GgxError::InvalidArgument(
-                "a light or view direction is the zero vector".into(),
+                "a light or view direction is the zero vector (or shorter than 1e-6)".into(),
             ));
         }
         if !(self.intensity.is_finite() && self.intensity >= 0.0) {
@@ -77,7 +80,7 @@ impl RenderSettings {
 
 /// Renders `R` (DESIGN §3 convention, times [`RenderSettings::scale_at`]) for every pixel,
 /// evaluating the BRDF in precision `T` (geometry is computed in f64, then rounded).
-/// Pixels where the light or viewer sits exactly on the pixel centre are 0.
+/// Pixels where the light or viewer sits on the pixel centre (closer than 1e-6) are 0.
 pub fn render<T: Float>(maps: &SvbrdfMaps, settings: &RenderSettings) -> Result<RgbImage<T>> {
     render_with_progress(maps, settings, &|| {})
 }
@@ -116,7 +119,7 @@ pub fn render_with_progress<T: Float>(
 mod tests {
     use super::*;
     use crate::brdf::GgxPoint;
-    use crate::geometry::capture_position;
+    use crate::geometry::{CAPTURE_DISTANCE, capture_position};
     use crate::vec3::Vec3;
 
     fn grey(roughness: f32) -> SvbrdfMaps {
@@ -132,7 +135,7 @@ mod tests {
     #[test]
     fn colocated_flash_highlight_peaks_at_the_centre() {
         let maps = grey(0.2);
-        let cam = capture_position();
+        let cam = capture_position(CAPTURE_DISTANCE);
         let s = RenderSettings::new(Light::Point(cam), View::Point(cam));
         let img = render::<f64>(&maps, &s).unwrap_or_else(|e| panic!("{e}"));
         let centre = img.pixel(7, 7)[0];
@@ -143,7 +146,7 @@ mod tests {
     #[test]
     fn falloff_and_intensity_scale_the_image() {
         let maps = grey(0.5);
-        let cam = capture_position();
+        let cam = capture_position(CAPTURE_DISTANCE);
         let far = cam * 2.0;
         let base = RenderSettings::new(Light::Point(far), View::Point(cam));
         let scaled = RenderSettings {
@@ -164,7 +167,7 @@ mod tests {
     #[test]
     fn invalid_settings_are_rejected() {
         let maps = grey(0.5);
-        let cam = capture_position();
+        let cam = capture_position(CAPTURE_DISTANCE);
         let bad = [
             RenderSettings {
                 intensity: f64::NAN,
@@ -189,5 +192,22 @@ mod tests {
                 "{s:?}"
             );
         }
+    }
+
+    /// The networks would light every pixel from straight above with a directional vector
+    /// shorter than 1e-6 (their degenerate-direction rule); the reference rejects it instead.
+    #[test]
+    fn directional_vectors_shorter_than_the_guard_are_rejected() {
+        let cam = capture_position(CAPTURE_DISTANCE);
+        let tiny = RenderSettings::new(
+            Light::Directional(Vec3::new(1e-7, 0.0, 1e-7)),
+            View::Point(cam),
+        );
+        assert!(matches!(tiny.validate(), Err(GgxError::InvalidArgument(_))));
+        let short_but_fine = RenderSettings::new(
+            Light::Point(cam),
+            View::Orthographic(Vec3::new(0.0, 0.0, 1e-5)),
+        );
+        assert!(short_but_fine.validate().is_ok());
     }
 }

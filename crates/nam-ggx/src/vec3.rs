@@ -27,6 +27,12 @@ impl<T: Float> Vec3<T> {
         Self { x, y, z }
     }
 
+    /// The origin, (0, 0, 0): the centre of the material.
+    #[inline]
+    pub fn zero() -> Self {
+        Self::new(T::ZERO, T::ZERO, T::ZERO)
+    }
+
     /// The surface normal of the macro surface, (0, 0, 1).
     #[inline]
     pub fn up() -> Self {
@@ -128,5 +134,13 @@ impl<T: Float> Neg for Vec3<T> {
     #[inline]
     fn neg(self) -> Self {
         Self::new(-self.x, -self.y, -self.z)
+    }
+}
+
+impl<T: Float> From<[T; 3]> for Vec3<T> {
+    /// `[x, y, z]`, the networks' interchange type.
+    #[inline]
+    fn from(a: [T; 3]) -> Self {
+        Self::from_array(a)
     }
 }

@@ -13,7 +13,7 @@
 //! remainder is the f32 map decoding amplified by roughness-0.02 highlights.)
 
 use nam_ggx::color::srgb_encode;
-use nam_ggx::geometry::capture_position;
+use nam_ggx::geometry::{CAPTURE_DISTANCE, capture_position};
 use nam_ggx::imageio::read_rgb;
 use nam_ggx::{Light, RenderSettings, SvbrdfMaps, View, render};
 use std::path::PathBuf;
@@ -37,7 +37,7 @@ fn python_example_photo_matches_rust_capture_render_of_python_material() {
         (photo.width(), photo.height()),
         (maps.width(), maps.height())
     );
-    let cam = capture_position();
+    let cam = capture_position(CAPTURE_DISTANCE);
     let img = render::<f32>(
         &maps,
         &RenderSettings::new(Light::Point(cam), View::Point(cam)),

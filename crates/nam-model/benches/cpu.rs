@@ -46,12 +46,12 @@ fn benches(c: &mut Criterion) {
     let net = RenderNet::new(&w).expect("random weights are complete");
     let map = param_map(256, 256);
     let light = [1.5, 1.0, 3.5];
-    let view = [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE];
+    let view = [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE as f32];
     g.bench_function("relight_256", |bch| {
         bch.iter(|| net.relight(black_box(&map), light, view))
     });
 
-    let wi = nam_model::geometry::direction([0.0; 3], light);
+    let wi = nam_model::geometry::unit_direction(light);
     g.bench_function("relight_directional_256", |bch| {
         bch.iter(|| net.relight_directional(black_box(&map), wi, [0.0, 0.0, 1.0]))
     });
@@ -92,9 +92,9 @@ fn specialisations(c: &mut Criterion) {
     let map = param_map(256, 256);
     let prep = net.prepare(&map).expect("valid map");
     let light = [1.5, 1.0, 3.5];
-    let view = [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE];
+    let view = [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE as f32];
     let (l, v) = (Source::Point(light), Source::Point(view));
-    let wi = nam_model::geometry::direction([0.0; 3], light);
+    let wi = nam_model::geometry::unit_direction(light);
     let (dl, dv) = (Source::Distant(wi), Source::Distant([0.0, 0.0, 1.0]));
     let full = Roi::full(256, 256);
     let mut g = c.benchmark_group("specialisations");
@@ -130,10 +130,10 @@ fn specialisations(c: &mut Criterion) {
     let n = 4096;
     let texels: Vec<usize> = (0..n).map(|q| (q * 7919) % (256 * 256)).collect();
     let qwi: Vec<[f32; 3]> = (0..n)
-        .map(|q| nam_model::geometry::direction([0.0; 3], [(q % 61) as f32 / 30.0 - 1.0, 0.4, 1.0]))
+        .map(|q| nam_model::geometry::unit_direction([(q % 61) as f32 / 30.0 - 1.0, 0.4, 1.0]))
         .collect();
     let qwo: Vec<[f32; 3]> = (0..n)
-        .map(|q| nam_model::geometry::direction([0.0; 3], [0.2, (q % 53) as f32 / 26.0 - 1.0, 1.0]))
+        .map(|q| nam_model::geometry::unit_direction([0.2, (q % 53) as f32 / 26.0 - 1.0, 1.0]))
         .collect();
     let mut out = vec![0.0f32; n * 3];
     g.bench_function("prepared_queries_4096", |b| {

@@ -60,7 +60,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         data,
     };
     let prep = net.prepare(&map)?;
-    let wi = nam_model::geometry::direction([0.0; 3], [1.5, 1.0, 3.5]);
+    let wi = nam_model::geometry::unit_direction([1.5, 1.0, 3.5]);
     let wo = [0.0, 0.0, 1.0];
     let [(one_wall, one_cpu), (prep_wall, prep_cpu)] = best_pair(
         5,

@@ -27,7 +27,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let img = net.relight(
         &map,
         [1.5, 1.0, 3.5],
-        [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE],
+        [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE as f32],
     )?;
     let ms = t.elapsed().as_secs_f64() * 1e3;
     let mean = img.data.iter().map(|&v| f64::from(v)).sum::<f64>() / img.data.len() as f64;

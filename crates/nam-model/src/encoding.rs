@@ -9,7 +9,8 @@
 //! (exact by Sterbenz), so `2^k·π·c = (π/2)(q + r)` and only `(π/2)·r ∈ [−π/4, π/4]`
 //! goes through the polynomial. Accuracy: ~1e-7 absolute for every octave.
 
-use crate::geometry::half_vector;
+use crate::geometry::Directions;
+use nam_ggx::Vec3;
 
 /// Number of direction values encoded (ωi, ωo, ωh).
 pub const DIR_VALUES: usize = 9;
@@ -19,12 +20,10 @@ pub const fn encoded_len(octaves: usize) -> usize {
     DIR_VALUES * (1 + 2 * octaves)
 }
 
-/// The 9 direction values `[ωi, ωo, ωh]` with ωh = normalize(ωi + ωo) (guarded).
+/// The 9 direction values `[ωi, ωo, ωh]` with ωh = normalize(ωi + ωo) (guarded,
+/// [`geometry::half_vector`](crate::geometry::half_vector)).
 pub fn direction_triple(wi: [f32; 3], wo: [f32; 3]) -> [f32; 9] {
-    let wh = half_vector(wi, wo);
-    [
-        wi[0], wi[1], wi[2], wo[0], wo[1], wo[2], wh[0], wh[1], wh[2],
-    ]
+    Directions::new(Vec3::from_array(wi), Vec3::from_array(wo)).to_array9()
 }
 
 /// `(sin, cos)` of `(π/2)·u` for `|u| < 2^22`, with exact quarter-turn reduction.

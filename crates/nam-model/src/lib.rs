@@ -18,7 +18,8 @@
 //!   for the fast path.
 //! * [`ParamMap::to_nam_bytes`] / [`ParamMap::from_nam_bytes`] — the `.nam` file.
 //! * [`input::network_input`] — photo (linear RGB, HWC) → the 4-channel CHW input.
-//! * [`geometry`] — pixel positions and per-pixel directions (DESIGN §3).
+//! * [`geometry`] — pixel positions and per-pixel directions (DESIGN §3), re-exported from
+//!   `nam-ggx`, the one home of the surface frame; the networks use it in f32.
 //!
 //! Conventions: directions are unit vectors in the surface frame (z up);
 //! radiance is `R = π·f_r·cos θi` for a unit light without falloff; networks
@@ -29,7 +30,6 @@
 mod bf16;
 pub mod encoding;
 mod error;
-pub mod geometry;
 pub mod input;
 mod param_file;
 mod prepared;
@@ -40,11 +40,16 @@ mod unet;
 
 pub use bf16::bf16_supported;
 pub use error::{ModelError, Result};
-pub use prepared::{PreparedMaterial, Roi, Source};
+pub use nam_ggx::geometry;
+pub use prepared::{PreparedMaterial, Roi};
 pub use render::{DEFAULT_TILE, ParamMap, RenderNet, Rgb, radiance_from_log};
 pub use unet::{MAX_SIDE, UNet};
 
 use nam_weights::Weights;
+
+/// Where a light or the viewer is, in the networks' precision (f32, surface frame):
+/// [`geometry::Source`].
+pub type Source = geometry::Source<f32>;
 
 /// The complete CPU model: estimator and renderer.
 #[derive(Debug, Clone)]

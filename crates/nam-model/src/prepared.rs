@@ -3,11 +3,13 @@
 //! light and viewer are ([`Source`]), and evaluation of only what is asked
 //! for: a rectangle of pixels ([`Roi`]) or a batch of (texel, ωi, ωo) queries.
 
+use crate::Source;
 use crate::encoding::direction_triple;
 use crate::error::{ModelError, Result, check_finite, check_len};
-use crate::geometry::{direction, pixel_position};
+use crate::geometry::{Directions, pixel_position};
 use crate::render::{Base, Dirs, NoDirs, ParamMap, RenderNet, Rgb};
 use crate::sgemm::{Mat, sgemm};
+use nam_ggx::Vec3;
 
 /// A param map with the material part of the first render layer precomputed:
 /// `rows[t·hidden + o] = Σ_k W_p[o, k] · p_t[k]` for every texel `t` (the
@@ -48,35 +50,14 @@ impl PreparedMaterial {
     }
 }
 
-/// Where a light or the viewer is, as seen from the surface (z > 0).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Source {
-    /// A point at this surface-frame position: a point light, or a
-    /// perspective (pinhole) viewer. Directions differ per pixel.
-    Point([f32; 3]),
-    /// Infinitely far along this direction (from the surface towards it; any
-    /// length, normalised here): a directional light, or an orthographic
-    /// viewer. The same direction at every pixel.
-    Distant([f32; 3]),
-}
-
-impl Source {
-    fn check(&self, what: &'static str) -> Result<()> {
-        let (Self::Point(v) | Self::Distant(v)) = self;
-        check_finite(what, v)?;
-        if v[2] <= 0.0 {
-            return Err(ModelError::BelowSurface);
-        }
-        Ok(())
+/// A light or viewer the networks can render: finite coordinates, above the surface (z > 0).
+fn check_source(source: &Source, what: &'static str) -> Result<()> {
+    let v = source.coordinates();
+    check_finite(what, &v)?;
+    if v[2] <= 0.0 {
+        return Err(ModelError::BelowSurface);
     }
-
-    /// Unit direction from surface point `pos` towards the source.
-    fn from(&self, pos: [f32; 3]) -> [f32; 3] {
-        match *self {
-            Self::Point(p) => direction(pos, p),
-            Self::Distant(d) => direction([0.0; 3], d),
-        }
-    }
+    Ok(())
 }
 
 /// A rectangle of pixels: rows `row..row + height`, columns `col..col + width`.
@@ -208,19 +189,23 @@ impl RenderNet {
         view: Source,
         roi: Roi,
     ) -> Result<Rgb> {
-        light.check("light")?;
-        view.check("view")?;
+        check_source(&light, "light")?;
+        check_source(&view, "view")?;
         roi.check(h, w)?;
         let texel = |g: usize| (roi.row + g / roi.width) * w + roi.col + g % roi.width;
         let mut data = vec![0.0f32; roi.height * roi.width * 3];
         if matches!((light, view), (Source::Distant(_), Source::Distant(_))) {
-            let c = self.constant_direction_part(light.from([0.0; 3]), view.from([0.0; 3]));
+            // Distant sources: the same directions at every surface point.
+            let origin = Vec3::zero();
+            let c = self.constant_direction_part(
+                light.direction_from(origin).to_array(),
+                view.direction_from(origin).to_array(),
+            );
             self.run(&mut data, true, &texel, base, &Dirs::<NoDirs>::Constant(&c));
         } else {
             let dirs = Dirs::Each(|g: usize| {
                 let t = texel(g);
-                let pos = pixel_position(t / w, t % w, h, w);
-                direction_triple(light.from(pos), view.from(pos))
+                Directions::at(&light, &view, pixel_position(t / w, t % w, h, w)).to_array9()
             });
             self.run(&mut data, true, &texel, base, &dirs);
         }

@@ -16,10 +16,11 @@
 use nam_weights::Weights;
 use rayon::prelude::*;
 
+use crate::Source;
 use crate::bf16::{Bf16Dense, bf16_supported};
 use crate::encoding::{direction_triple, encode_into, encoded_len};
 use crate::error::{ModelError, Result, check_finite, check_len};
-use crate::geometry::{direction, pixel_position};
+use crate::geometry::{Directions, pixel_position};
 use crate::sgemm::{Mat, sgemm};
 
 /// Pixels per fused tile. 256 keeps a tile's activations (256×594 f32 ≈ 600 KB
@@ -743,9 +744,9 @@ impl RenderNet {
             return Err(ModelError::BelowSurface);
         }
         let (h, w) = (map.height, map.width);
+        let (light, view) = (Source::Point(light), Source::Point(view));
         let dirs = Dirs::Each(|g: usize| {
-            let pos = pixel_position(g / w, g % w, h, w);
-            direction_triple(direction(pos, light), direction(pos, view))
+            Directions::at(&light, &view, pixel_position(g / w, g % w, h, w)).to_array9()
         });
         let mut data = vec![0.0f32; n * 3];
         self.run(&mut data, true, &|g| g, Base::Params(&map.data), &dirs);

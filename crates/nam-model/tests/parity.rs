@@ -87,7 +87,8 @@ fn check_unet(gold: &Golden) {
     let input = gold.g.get("input", &[4, h, w]).unwrap();
     let photo = gold.g.get("photo", &[h, w, 3]).unwrap();
     let mode = gold.weights.config().log_mode;
-    let built = nam_model::input::network_input(photo, h, w, mode).unwrap();
+    let d = nam_model::geometry::CAPTURE_DISTANCE as f32;
+    let built = nam_model::input::network_input(photo, h, w, mode, d).unwrap();
     let e = max_rel_err(&built, input);
     println!("network input ({mode:?}) vs torch: {e:e}");
     assert!(e < INPUT_TOL, "network input: {e:e}");
@@ -267,7 +268,7 @@ fn relight_fast_path_matches_reference_with_folded_first_layers() {
     let (h, wd) = (5, 9);
     let map = pattern_map(h, wd, 53, 97, 48.0);
     let light = [1.5, 1.0, 3.5];
-    let view = [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE];
+    let view = [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE as f32];
     let img = net.relight(&map, light, view).unwrap();
     let (wi, wo) = nam_model::geometry::pixel_directions(h, wd, light, view);
     for p in 0..h * wd {
@@ -315,7 +316,7 @@ fn pixel_directions_match_golden_geometry_5x7() {
     let wh: Vec<[f32; 3]> = wi
         .iter()
         .zip(&wo)
-        .map(|(a, b)| nam_model::geometry::half_vector(*a, *b))
+        .map(|(&a, &b)| nam_model::geometry::half_vector(a.into(), b.into()).to_array())
         .collect();
     for (name, ours) in [("geom_wi", &wi), ("geom_wo", &wo), ("geom_wh", &wh)] {
         let want = g.get(name, &[h, w, 3]).unwrap();

@@ -180,10 +180,10 @@ fn separate_pieces_compose_to_the_fused_pipeline_across_tiles() {
     let n = 20; // three tiles, the last one ragged
     let params = pattern(n * 64, 13, 41, 20.0);
     let wi: Vec<[f32; 3]> = (0..n)
-        .map(|q| nam_model::geometry::direction([0.0; 3], [q as f32 * 0.1, 0.3, 1.0]))
+        .map(|q| nam_model::geometry::unit_direction([q as f32 * 0.1, 0.3, 1.0]))
         .collect();
     let wo: Vec<[f32; 3]> = (0..n)
-        .map(|q| nam_model::geometry::direction([0.0; 3], [-0.2, q as f32 * 0.05, 1.0]))
+        .map(|q| nam_model::geometry::unit_direction([-0.2, q as f32 * 0.05, 1.0]))
         .collect();
     let mut enc = vec![0.0; n * net.encoded_len()];
     net.encode(&wi, &wo, &mut enc).unwrap();
@@ -219,7 +219,7 @@ fn bf16_relight_is_close_to_f32_and_not_identical() {
     let map = pattern_map(h, wd, 29, 83, 41.0);
     let (light, view) = (
         [1.5, 1.0, 3.5],
-        [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE],
+        [0.0, 0.0, nam_model::geometry::CAPTURE_DISTANCE as f32],
     );
     let a = f32net.relight(&map, light, view).unwrap();
     let b = bf.relight(&map, light, view).unwrap();

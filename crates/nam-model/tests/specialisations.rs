@@ -3,7 +3,7 @@
 //! once), directional light + orthographic view (ND_enc once), ROI and query
 //! batches (only what is asked for), and the `render.l0·l1` fold.
 
-use nam_model::geometry::{CAPTURE_DISTANCE, direction, pixel_directions};
+use nam_model::geometry::{CAPTURE_DISTANCE, pixel_directions, unit_direction};
 use nam_model::reference::{self, Accumulate};
 use nam_model::{ModelError, ParamMap, RenderNet, Roi, Source};
 use nam_weights::{ModelConfig, Weights};
@@ -28,7 +28,7 @@ const FOLD_TOL: f32 = 1e-4;
 const FAST_VS_REFERENCE_TOL: f32 = 1e-4;
 
 const LIGHT: [f32; 3] = [1.5, 1.0, 3.5];
-const VIEW: [f32; 3] = [0.0, 0.0, CAPTURE_DISTANCE];
+const VIEW: [f32; 3] = [0.0, 0.0, CAPTURE_DISTANCE as f32];
 
 fn weights(seed: u64) -> Weights {
     Weights::random(ModelConfig::standard(2), seed).unwrap()
@@ -89,7 +89,7 @@ fn prepared_directional_matches_per_pixel_path_and_one_shot_directional() {
     let m = map(h, w, 3);
     // Not unit length: Source::Distant normalises.
     let (l, v) = ([0.6, -0.4, 1.8], [0.0, 1.2, 1.6]);
-    let (wi, wo) = (direction([0.0; 3], l), direction([0.0; 3], v));
+    let (wi, wo) = (unit_direction(l), unit_direction(v));
     let general = net
         .relight_with_directions(&m, &vec![wi; h * w], &vec![wo; h * w])
         .unwrap();
@@ -124,7 +124,7 @@ fn mixed_point_light_and_orthographic_view_match_per_pixel_directions() {
     let m = map(h, w, 5);
     let v = [0.3, 0.0, 1.0];
     let (wi, _) = pixel_directions(h, w, LIGHT, VIEW);
-    let wo = vec![direction([0.0; 3], v); h * w];
+    let wo = vec![unit_direction(v); h * w];
     let general = net.relight_with_directions(&m, &wi, &wo).unwrap();
     let prep = net.prepare(&m).unwrap();
     let fast = net
@@ -196,10 +196,10 @@ fn query_batch_matches_render_log_batch_and_the_reference() {
     let n = 40; // five tiles, ragged; repeated and out-of-order texels
     let texels: Vec<usize> = (0..n).map(|q| (q * 37 + 5) % 64).collect();
     let wi: Vec<[f32; 3]> = (0..n)
-        .map(|q| direction([0.0; 3], [q as f32 * 0.07 - 1.0, 0.3, 1.0]))
+        .map(|q| unit_direction([q as f32 * 0.07 - 1.0, 0.3, 1.0]))
         .collect();
     let wo: Vec<[f32; 3]> = (0..n)
-        .map(|q| direction([0.0; 3], [-0.2, 0.8 - q as f32 * 0.04, 1.0]))
+        .map(|q| unit_direction([-0.2, 0.8 - q as f32 * 0.04, 1.0]))
         .collect();
     let mut got = vec![0.0f32; n * 3];
     net.render_log_prepared(&prep, &texels, &wi, &wo, &mut got)

@@ -10,17 +10,14 @@
 //! up-convs, output) and name the largest; the render rows are single layers. The render MLP is
 //! traced on every 16th pixel in each direction under four light/view pairs.
 
+use nam::geometry::{CAPTURE_DISTANCE, direction, pixel_position};
 use nam::{NeuralModel, Photo};
+use nam_ggx::Vec3;
 use nam_model::reference::{self, Accumulate, ActivationRanges};
 use rayon::prelude::*;
 
 const F16_MAX: f32 = 65504.0;
-const D: f32 = 4.010_781;
-
-fn unit(v: [f32; 3]) -> [f32; 3] {
-    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    [v[0] / n, v[1] / n, v[2] / n]
-}
+const D: f32 = CAPTURE_DISTANCE as f32;
 
 /// `max |a − b| / max |b|`.
 fn normwise(a: &[f32], b: &[f32]) -> f64 {
@@ -62,9 +59,9 @@ fn trace(model: &NeuralModel, photo: &Photo) -> (ActivationRanges, f64, f64) {
     for (light, view) in scenes {
         for i in (0..side).step_by(16) {
             for j in (0..side).step_by(16) {
-                let p = nam_model::geometry::pixel_position(i, j, side, side);
-                let wi = unit([light[0] - p[0], light[1] - p[1], light[2]]);
-                let wo = unit([view[0] - p[0], view[1] - p[1], view[2]]);
+                let p = pixel_position(i, j, side, side);
+                let wi = direction(p, Vec3::from_array(light)).to_array();
+                let wo = direction(p, Vec3::from_array(view)).to_array();
                 let k = i * side + j;
                 let (_, r) = reference::render_traced(
                     w,

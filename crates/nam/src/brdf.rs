@@ -137,10 +137,7 @@ impl<'a> NeuralBrdf<'a> {
         let dirs: Vec<f32> = wi
             .iter()
             .zip(wo)
-            .flat_map(|(&i, &o)| {
-                let h = nam_model::geometry::half_vector(i, o);
-                [i, o, h].into_iter().flatten()
-            })
+            .flat_map(|(&i, &o)| nam_model::encoding::direction_triple(i, o))
             .collect();
         self.model.with_gpu(|net| Ok(net.render(params, &dirs)?))
     }

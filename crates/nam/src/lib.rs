@@ -22,7 +22,8 @@
 //! ```
 //!
 //! Conventions (DESIGN.md §3): the material lies on z = 0 spanning [−1, 1]², z up; the photo
-//! is taken from (0, 0, d), d = 1/tan 14°, with a co-located flash; radiance is
+//! is taken from (0, 0, d), d = 1/tan 14° (a 28° camera; [`Photo::with_fov`] declares
+//! another, d = [`geometry::capture_distance`]`(fov)`), with a co-located flash; radiance is
 //! `R = π f_r cos θi` for a unit light without inverse-square falloff.
 //!
 //! Renderers use [`NeuralBrdf`]: batched `eval` (f_r·cos θi or f_r), cosine `sample` and
@@ -54,7 +55,7 @@ pub use photo::{MAX_PHOTO_SIDE, Photo};
 pub use relight::{Scene, relight, relight_roi};
 pub use sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere};
 
-/// Scene geometry and the GGX reference (re-exported from `nam-ggx`).
+/// Scene geometry, the one home of the surface frame (re-exported from `nam-ggx`).
 pub use nam_ggx::geometry;
 pub use nam_ggx::{RgbImage, Vec3d};
 /// The GPU backend (re-exported from `nam-gpu`).

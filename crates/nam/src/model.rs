@@ -162,7 +162,8 @@ impl NeuralModel {
         Some(f(&mut net))
     }
 
-    /// Estimates the neural material of a photo (runs `M_est` once).
+    /// Estimates the neural material of a photo (runs `M_est` once), taken with the photo's
+    /// field of view ([`Photo::with_fov`]; 28°, the training geometry, unless declared).
     pub fn estimate(&self, photo: &Photo) -> Result<NeuralMaterial> {
         let side = photo.side();
         let input = photo.network_input(self.config().log_mode)?;

@@ -1,11 +1,14 @@
 //! Input photos: loading, validation and the 4-channel network input (docs/FORMAT.md).
 //!
 //! A photo is a square image of a near-planar material taken from the capture position
-//! (0, 0, d) with a co-located flash (DESIGN.md §3). Pixel values are *linear* RGB radiance
-//! in the network's convention (a white diffuse surface facing the flash reads ≈ 1).
+//! (0, 0, d) with a co-located flash (DESIGN.md §3), d = 1/tan(fov/2) for the camera's field
+//! of view (28° unless the photo declares another, [`Photo::with_fov`]). Pixel values are
+//! *linear* RGB radiance in the network's convention (a white diffuse surface facing the flash
+//! reads ≈ 1).
 
 use crate::error::{NamError, Result};
 use nam_ggx::color::srgb_decode;
+use nam_ggx::geometry::{CAPTURE_FOV_DEG, FOV_RANGE_DEG, capture_distance};
 use nam_ggx::imageio::{FileKind, read_rgb};
 use nam_model::input::network_input;
 use nam_weights::LogMode;
@@ -15,11 +18,13 @@ use std::path::Path;
 /// ≈ 64·(1+…)·H·W floats; 4096² is where that stops fitting a typical machine.
 pub const MAX_PHOTO_SIDE: usize = 4096;
 
-/// A validated linear-RGB photo, row-major, channels interleaved.
+/// A validated linear-RGB photo, row-major, channels interleaved, with the field of view of
+/// the camera that took it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Photo {
     side: usize,
     rgb: Vec<f32>,
+    fov_deg: f64,
 }
 
 impl Photo {
@@ -40,7 +45,8 @@ impl Photo {
 
     /// Wraps linear RGB values (`rgb.len() == 3·width·height`). Errors on a non-square or
     /// empty image, a side above [`MAX_PHOTO_SIDE`], or any NaN/Inf value. Negative values
-    /// (noise in HDR files) are kept; the network input clamps them to 0.
+    /// (noise in HDR files) are kept; the network input clamps them to 0. The field of view
+    /// is the training geometry's, 28° ([`Photo::with_fov`] declares another).
     pub fn from_linear_rgb(width: usize, height: usize, rgb: Vec<f32>) -> Result<Self> {
         if width == 0 || height == 0 {
             return Err(NamError::Photo("the photo has no pixels".into()));
@@ -73,7 +79,40 @@ impl Photo {
                 rgb[k]
             )));
         }
-        Ok(Self { side: width, rgb })
+        Ok(Self {
+            side: width,
+            rgb,
+            fov_deg: CAPTURE_FOV_DEG,
+        })
+    }
+
+    /// Declares the field of view of the camera that took the (square) photo, in degrees,
+    /// within [`FOV_RANGE_DEG`]: the estimator then sees camera and flash at (0, 0, d),
+    /// d = [`capture_distance`]`(degrees)` (surface frame, material half-widths), instead of
+    /// the training geometry's 28°. Phone photos cropped to a centre square are often 35–50°.
+    pub fn with_fov(self, degrees: f64) -> Result<Self> {
+        if !FOV_RANGE_DEG.contains(&degrees) {
+            return Err(NamError::Photo(format!(
+                "field of view {degrees}° is outside {}..={} degrees",
+                FOV_RANGE_DEG.start(),
+                FOV_RANGE_DEG.end()
+            )));
+        }
+        Ok(Self {
+            fov_deg: degrees,
+            ..self
+        })
+    }
+
+    /// Field of view of the camera that took the photo, degrees (28 unless declared).
+    pub fn fov(&self) -> f64 {
+        self.fov_deg
+    }
+
+    /// Distance of the capture camera and flash from the material's centre, `1/tan(fov/2)`
+    /// (material half-widths): they sit at (0, 0, d).
+    pub fn capture_distance(&self) -> f64 {
+        capture_distance(self.fov_deg)
     }
 
     /// Side length in pixels (photos are square).
@@ -100,7 +139,7 @@ impl Photo {
 
     /// Resamples to `side`×`side` with a triangle (bilinear) filter on downscale and
     /// Catmull-Rom on upscale
-    /// (in linear space, so highlights keep their energy).
+    /// (in linear space, so highlights keep their energy). The field of view is kept.
     pub fn resized(&self, side: usize) -> Result<Self> {
         if side == 0 || side > MAX_PHOTO_SIDE {
             return Err(NamError::Photo(format!(
@@ -119,14 +158,18 @@ impl Photo {
             image::imageops::FilterType::CatmullRom
         };
         let out = image::imageops::resize(&buf, side as u32, side as u32, filter);
-        Self::from_linear_rgb(side, side, out.into_raw())
+        Ok(Self {
+            fov_deg: self.fov_deg,
+            ..Self::from_linear_rgb(side, side, out.into_raw())?
+        })
     }
 
     /// The 4-channel network input, CHW (`[4, side, side]`): `ln(1 + clamp(rgb))` per the
-    /// model's log mode and the capture half-vector z (docs/FORMAT.md); see
-    /// [`nam_model::input::network_input`].
+    /// model's log mode and the capture half-vector z for the photo's field of view
+    /// (docs/FORMAT.md); see [`nam_model::input::network_input`].
     pub fn network_input(&self, mode: LogMode) -> Result<Vec<f32>> {
-        Ok(network_input(&self.rgb, self.side, self.side, mode)?)
+        let d = self.capture_distance() as f32;
+        Ok(network_input(&self.rgb, self.side, self.side, mode, d)?)
     }
 }
 
@@ -206,5 +249,35 @@ mod tests {
         assert!((hdr[0] - 1e6f32.ln_1p()).abs() < 1e-5);
         // A 1×1 photo's only pixel is the centre: half vector straight up.
         assert!((hdr[3] - 1.0).abs() < 1e-7);
+    }
+
+    #[test]
+    fn fov_moves_the_capture_camera_and_survives_a_resize() {
+        let p = Photo::from_linear_rgb(4, 4, vec![0.5; 48]).expect("valid");
+        assert_eq!(p.fov(), CAPTURE_FOV_DEG);
+        assert_eq!(p.capture_distance(), capture_distance(CAPTURE_FOV_DEG));
+        let wide = p
+            .clone()
+            .with_fov(45.0)
+            .expect("in range")
+            .resized(2)
+            .expect("resize");
+        assert_eq!(wide.fov(), 45.0);
+        let d = wide.capture_distance();
+        assert!((d - (1.0 + 2f64.sqrt())).abs() < 1e-12, "{d}");
+        // Pixel (0, 0) of a 2×2 photo is at (−0.5, 0.5).
+        let z = wide.network_input(LogMode::Ldr).expect("input")[3 * 4];
+        let want = d / (0.5 + d * d).sqrt();
+        assert!((f64::from(z) - want).abs() < 1e-6, "{z} vs {want}");
+    }
+
+    #[test]
+    fn fov_outside_the_range_is_an_error_naming_it() {
+        let p = Photo::from_linear_rgb(1, 1, vec![0.5; 3]).expect("valid");
+        for bad in [0.0, 4.9, 120.1, 500.0, f64::NAN, f64::INFINITY] {
+            let err = p.clone().with_fov(bad).unwrap_err().to_string();
+            assert!(err.contains("5..=120 degrees"), "{bad}: {err}");
+        }
+        assert!(p.clone().with_fov(5.0).is_ok() && p.with_fov(120.0).is_ok());
     }
 }

@@ -3,8 +3,12 @@
 use crate::error::{NamError, Result};
 use crate::material::NeuralMaterial;
 use crate::model::NeuralModel;
+#[cfg(feature = "gpu")]
+use nam_ggx::Vec3;
+#[cfg(feature = "gpu")]
+use nam_ggx::geometry::Directions;
 use nam_ggx::geometry::{Light, View, pixel_position};
-use nam_ggx::{RenderSettings, RgbImage, Vec3d};
+use nam_ggx::{RenderSettings, RgbImage};
 use nam_model::{Roi, Source};
 
 /// Light, viewer, intensity and falloff of a relight: the same type the GGX reference uses,
@@ -61,10 +65,15 @@ pub fn relight_roi(
         )));
     }
     let mut img = RgbImage::zeros(roi.width, roi.height)?;
-    let (light, view) = (light_source(scene), view_source(scene));
-    let (Source::Point(l) | Source::Distant(l), Source::Point(v) | Source::Distant(v)) =
-        (light, view);
-    if !l.iter().chain(&v).all(|x| x.is_finite()) {
+    // One route for both backends: the scene in the networks' f32, whose per-pixel
+    // directions both compute with `Directions::at`.
+    let (light, view): (Source, Source) = (scene.light.source(), scene.view.source());
+    if !light
+        .coordinates()
+        .iter()
+        .chain(&view.coordinates())
+        .all(|x| x.is_finite())
+    {
         return Err(NamError::Query(format!(
             "light and view coordinates must fit in f32 (|x| < 3.4e38), got {:?} and {:?}",
             scene.light, scene.view
@@ -73,7 +82,7 @@ pub fn relight_roi(
     if !above_surface(scene) {
         return Ok(img);
     }
-    let radiance = match render_gpu(model, material, scene, roi) {
+    let radiance = match render_gpu(model, material, light, view, roi) {
         Some(gpu) => gpu?,
         None => {
             let net = &model.cpu().render;
@@ -96,40 +105,15 @@ pub fn relight_roi(
     Ok(img)
 }
 
-fn to32(p: Vec3d) -> [f32; 3] {
-    [p.x as f32, p.y as f32, p.z as f32]
-}
-
-fn light_source(scene: &Scene) -> Source {
-    match scene.light {
-        Light::Point(p) => Source::Point(to32(p)),
-        Light::Directional(d) => Source::Distant(to32(d)),
-    }
-}
-
-fn view_source(scene: &Scene) -> Source {
-    match scene.view {
-        View::Point(p) => Source::Point(to32(p)),
-        View::Orthographic(d) => Source::Distant(to32(d)),
-    }
-}
-
+/// Per-pixel `[ωi, ωo, ωh]` (f32, 9 per pixel of `roi`): the directions the CPU path
+/// computes per tile, [`Directions::at`] (degenerate ones are the normal (0, 0, 1)).
 #[cfg(feature = "gpu")]
-/// Per-pixel `[ωi, ωo, ωh]` (f32, 9 per pixel of `roi`) for a scene; pixels whose centre
-/// coincides with the light or viewer get the co-located straight-up triple (their radiance
-/// is then scaled by 0 falloff or is a measure-zero point).
-fn direction_triples(scene: &Scene, h: usize, w: usize, roi: Roi) -> Vec<f32> {
+fn direction_triples(light: &Source, view: &Source, h: usize, w: usize, roi: Roi) -> Vec<f32> {
     let mut dirs = Vec::with_capacity(roi.height * roi.width * 9);
     for i in roi.row..roi.row + roi.height {
         for j in roi.col..roi.col + roi.width {
-            let t = nam_ggx::geometry::directions_at(
-                &scene.light,
-                &scene.view,
-                pixel_position(i, j, h, w),
-            )
-            .map(|d| d.cast::<f32>().to_array9())
-            .unwrap_or([0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0]);
-            dirs.extend_from_slice(&t);
+            let p = pixel_position(i, j, h, w);
+            dirs.extend_from_slice(&Directions::at(light, view, p).to_array9());
         }
     }
     dirs
@@ -142,7 +126,8 @@ fn direction_triples(scene: &Scene, h: usize, w: usize, roi: Roi) -> Vec<f32> {
 fn render_gpu(
     model: &NeuralModel,
     material: &NeuralMaterial,
-    scene: &Scene,
+    light: Source,
+    view: Source,
     roi: Roi,
 ) -> Option<Result<Vec<f32>>> {
     let (h, w) = material.size();
@@ -154,26 +139,23 @@ fn render_gpu(
             p.data[start..start + roi.width * c].iter().copied()
         })
         .collect();
-    if let (Light::Directional(_), View::Orthographic(_)) = (scene.light, scene.view) {
-        let triple = direction_triples(
-            scene,
-            h,
-            w,
-            Roi {
-                height: 1,
-                width: 1,
-                ..roi
-            },
-        );
-        let triple: [f32; 9] = triple.try_into().ok()?;
+    if let (Source::Distant(_), Source::Distant(_)) = (light, view) {
+        // The same directions at every surface point.
+        let triple = Directions::at(&light, &view, Vec3::zero()).to_array9();
         return model.with_gpu(|net| Ok(net.render_directional(&params, &triple)?));
     }
-    let dirs = direction_triples(scene, h, w, roi);
+    let dirs = direction_triples(&light, &view, h, w, roi);
     model.with_gpu(|net| Ok(net.render(&params, &dirs)?))
 }
 
 /// Without the `gpu` feature there is only the CPU.
 #[cfg(not(feature = "gpu"))]
-fn render_gpu(_: &NeuralModel, _: &NeuralMaterial, _: &Scene, _: Roi) -> Option<Result<Vec<f32>>> {
+fn render_gpu(
+    _: &NeuralModel,
+    _: &NeuralMaterial,
+    _: Source,
+    _: Source,
+    _: Roi,
+) -> Option<Result<Vec<f32>>> {
     None
 }

@@ -60,7 +60,8 @@ fn network_input_matches_torch_golden() {
     let photo = &g.tensors()["photo"];
     let (h, w) = (photo.shape()[0], photo.shape()[1]);
     let want = g.get("input", &[4, h, w]).expect("input");
-    let got = nam::network_input(photo.data(), h, w, LogMode::Ldr).expect("input");
+    let d = nam::geometry::CAPTURE_DISTANCE as f32;
+    let got = nam::network_input(photo.data(), h, w, LogMode::Ldr, d).expect("input");
     let worst = got
         .iter()
         .zip(want)
@@ -232,7 +233,9 @@ fn embedded_model_estimates_and_relights_the_bundled_photo_to_finite_values() {
     let m = model.estimate(&photo).expect("estimate");
     let scene = Scene::new(
         Light::Point(point(1.0, 1.0, 3.5)),
-        View::Point(nam::geometry::capture_position()),
+        View::Point(nam::geometry::capture_position(
+            nam::geometry::CAPTURE_DISTANCE,
+        )),
     );
     let img = relight(&model, &m, &scene).expect("relight");
     assert!(img.data().iter().all(|v| v.is_finite() && *v >= 0.0));

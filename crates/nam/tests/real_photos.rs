@@ -15,7 +15,7 @@
 
 mod common;
 
-use nam::geometry::{Light, View, capture_position};
+use nam::geometry::{CAPTURE_DISTANCE, Light, View, capture_position};
 use nam::{NeuralModel, Photo, RgbImage, Scene, Vec3d, relight};
 use rayon::prelude::*;
 
@@ -65,7 +65,10 @@ struct Measures {
 }
 
 fn relit(model: &NeuralModel, material: &nam::NeuralMaterial, light: Vec3d) -> RgbImage<f32> {
-    let scene = Scene::new(Light::Point(light), View::Point(capture_position()));
+    let scene = Scene::new(
+        Light::Point(light),
+        View::Point(capture_position(CAPTURE_DISTANCE)),
+    );
     let img = relight(model, material, &scene).expect("relight");
     assert!(img.first_non_finite().is_none(), "non-finite radiance");
     assert!(img.data().iter().all(|&v| v >= -1e-3), "negative radiance");
@@ -101,7 +104,7 @@ fn right_over_left(img: &RgbImage<f32>) -> f64 {
 
 fn measure(model: &NeuralModel, photo: &Photo) -> Measures {
     let material = model.estimate(photo).expect("estimate");
-    let identity = relit(model, &material, capture_position());
+    let identity = relit(model, &material, capture_position(CAPTURE_DISTANCE));
     let (mut l1, mut chroma_err, mut grey_err, mut n) = (0.0, 0.0, 0.0, 0usize);
     let (mut col_photo, mut col_out) = (0.0, 0.0);
     for (p, o) in photo

@@ -16,7 +16,7 @@ use nam::{
 use std::sync::OnceLock;
 
 /// Capture distance d = 1/tan 14° (DESIGN §3).
-const D: f64 = 4.010_780_933_535_842;
+const D: f64 = nam::geometry::CAPTURE_DISTANCE;
 
 fn model() -> &'static NeuralModel {
     static M: OnceLock<NeuralModel> = OnceLock::new();
@@ -139,7 +139,8 @@ fn hdr_log_input_up_to_1e6_keeps_the_unet_finite() {
     let side = 13;
     let mut rgb = textured(side);
     rgb.iter_mut().step_by(3).for_each(|x| *x *= 1e6);
-    let input = nam::network_input(&rgb, side, side, LogMode::Hdr).expect("finite photo");
+    let d = nam::geometry::CAPTURE_DISTANCE as f32;
+    let input = nam::network_input(&rgb, side, side, LogMode::Hdr, d).expect("finite photo");
     let max_in = input[..3 * side * side]
         .iter()
         .fold(0.0f32, |a, &b| a.max(b));
@@ -703,7 +704,7 @@ fn trace(photo: &Photo, pixel_step: usize) -> Traced {
     for (light, view) in trace_scenes() {
         for i in (0..side).step_by(pixel_step) {
             for j in (0..side).step_by(pixel_step) {
-                let p = nam_model::geometry::pixel_position(i, j, side, side);
+                let p = nam_model::geometry::pixel_position::<f32>(i, j, side, side).to_array();
                 let wi = unit([light[0] - p[0], light[1] - p[1], light[2]]);
                 let wo = unit([view[0] - p[0], view[1] - p[1], view[2]]);
                 let k = i * side + j;
@@ -854,7 +855,8 @@ fn f16_has_headroom_over_the_render_mlp_at_full_resolution() {
             for (light, view) in trace_scenes() {
                 for i in (side / 8..side).step_by(side / 4) {
                     for j in (side / 8..side).step_by(side / 4) {
-                        let p = nam_model::geometry::pixel_position(i, j, side, side);
+                        let p =
+                            nam_model::geometry::pixel_position::<f32>(i, j, side, side).to_array();
                         let wi = unit([light[0] - p[0], light[1] - p[1], light[2]]);
                         let wo = unit([view[0] - p[0], view[1] - p[1], view[2]]);
                         let k = i * side + j;

@@ -3,7 +3,7 @@
 
 use anyhow::{Result, bail};
 use nam::NeuralModel;
-use nam_model::geometry::{CAPTURE_DISTANCE, direction};
+use nam_model::geometry::{CAPTURE_DISTANCE, unit_direction};
 use nam_model::{RenderNet, Roi, Source};
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -157,8 +157,8 @@ pub fn run(args: &Args) -> Result<()> {
     let mut c = vec![0.0f32; sn * sn];
 
     let light = [1.5, 1.0, 3.5];
-    let view = [0.0, 0.0, CAPTURE_DISTANCE];
-    let wi = direction([0.0; 3], light);
+    let view = [0.0, 0.0, CAPTURE_DISTANCE as f32];
+    let wi = unit_direction(light);
     let wo = [0.0, 0.0, 1.0];
     let full = Roi::full(s, s);
     let (pl, pv) = (Source::Point(light), Source::Point(view));
@@ -172,10 +172,10 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let texels: Vec<usize> = (0..QUERIES).map(|q| (q * 7919) % n).collect();
     let qwi: Vec<[f32; 3]> = (0..QUERIES)
-        .map(|q| direction([0.0; 3], [(q % 61) as f32 / 30.0 - 1.0, 0.4, 1.0]))
+        .map(|q| unit_direction([(q % 61) as f32 / 30.0 - 1.0, 0.4, 1.0]))
         .collect();
     let qwo: Vec<[f32; 3]> = (0..QUERIES)
-        .map(|q| direction([0.0; 3], [0.2, (q % 53) as f32 / 26.0 - 1.0, 1.0]))
+        .map(|q| unit_direction([0.2, (q % 53) as f32 / 26.0 - 1.0, 1.0]))
         .collect();
     let mut out = vec![0.0f32; QUERIES * 3];
 

@@ -4,10 +4,9 @@
 
 use super::bench::{Case, Row, measure};
 use anyhow::{Context, Result, bail};
-use nam::geometry::{Light, View};
+use nam::geometry::{CAPTURE_DISTANCE, Light, View, capture_position};
 use nam::{NeuralMaterial, NeuralModel, Scene, Vec3d, relight};
 use nam_model::ParamMap;
-use nam_model::geometry::CAPTURE_DISTANCE;
 use std::fmt::Write as _;
 
 /// Times the GPU and CPU relights of `map` (square) and returns the Markdown table.
@@ -35,7 +34,7 @@ pub fn run(model: &NeuralModel, map: ParamMap, rep: usize) -> Result<String> {
     let material = NeuralMaterial::new(map, on_cpu.fingerprint().to_string())?;
     let point = Scene::new(
         Light::Point(Vec3d::from_array([1.5, 1.0, 3.5])),
-        View::Point(Vec3d::from_array([0.0, 0.0, f64::from(CAPTURE_DISTANCE)])),
+        View::Point(capture_position(CAPTURE_DISTANCE)),
     );
     let directional = Scene::new(
         Light::Directional(Vec3d::from_array([1.5, 1.0, 3.5])),

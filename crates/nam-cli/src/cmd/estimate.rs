@@ -13,8 +13,8 @@ use std::time::Instant;
   nam-cli estimate photo.png -o photo.nam
   nam-cli relight photo.nam --light orbit:12 -o frames/photo.png")]
 pub struct Args {
-    /// Square flash photo (.png/.jpg sRGB, .exr linear), taken from (0,0,4.01) with a
-    /// co-located flash.
+    /// Square flash photo (.png/.jpg sRGB, .exr linear), taken from (0,0,d) with a co-located
+    /// flash, d = 1/tan(fov/2) (4.01 for the default --fov 28).
     pub photo: PathBuf,
     #[command(flatten)]
     pub photo_args: PhotoArgs,

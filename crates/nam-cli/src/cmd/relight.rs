@@ -1,13 +1,13 @@
 //! `nam-cli relight`: render a photo's (or a saved material's) neural material under new
 //! lights — one frame, or a sweep written as numbered frames, a contact sheet and a GIF.
 
-use crate::args::{parse_non_negative, parse_vec3};
+use crate::args::{parse_fov, parse_non_negative, parse_vec3};
 use crate::backend::ModelArgs;
 use crate::output::{check_output_dir, check_output_path, write_atomic, write_linear_rgb};
 use crate::progress;
 use crate::sweep::{LightSpec, contact_sheet, encode_gif, expand, frame_path, parse_light_spec};
 use anyhow::{Context, Result, bail};
-use nam::geometry::{Light, View};
+use nam::geometry::{CAPTURE_FOV_DEG, Light, View, capture_distance, capture_position};
 use nam::{LogMode, NeuralMaterial, NeuralModel, Photo, Scene, Vec3d, relight};
 use nam_model::input::LDR_CLAMP;
 use std::path::{Path, PathBuf};
@@ -16,7 +16,8 @@ use std::time::Instant;
 /// Relight a flash photo (PNG/JPEG sRGB, EXR linear) or a saved material (.nam).
 ///
 /// Coordinates are the surface frame: the material spans [−1,1]² on z = 0, z up, the photo
-/// was taken from (0,0,4.01) with a co-located flash. Several --light values (or
+/// was taken from (0,0,d) with a co-located flash, d = 1/tan(fov/2) (4.01 for the default
+/// --fov 28). Several --light values (or
 /// orbit:N[,elevation°[,distance]]) write numbered frames OUT_000.png, OUT_001.png, …
 #[derive(Debug, clap::Args)]
 #[command(after_help = "Examples:
@@ -29,15 +30,15 @@ pub struct Args {
     /// `nam-cli estimate` (.nam; skips the estimator).
     pub input: PathBuf,
     /// Light position x,y,z (z > 0); repeat for a sweep, or orbit:N[,elevation°[,distance]]
-    /// (default elevation 45°, distance 4.01).
+    /// (default elevation 45°, distance d: the capture camera's).
     #[arg(long, required = true, value_parser = parse_light_spec, allow_hyphen_values = true)]
     pub light: Vec<LightSpec>,
     /// Treat --light values as directions towards a distant light (normalised).
     #[arg(long)]
     pub directional: bool,
-    /// Viewer position x,y,z (z > 0); the default is the capture camera.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, default_value = "0,0,4.010781")]
-    pub view: [f64; 3],
+    /// Viewer position x,y,z (z > 0) [default: the capture camera, 0,0,d]
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub view: Option<[f64; 3]>,
     /// Treat --view as the direction of an orthographic viewer.
     #[arg(long)]
     pub orthographic: bool,
@@ -74,7 +75,7 @@ pub fn run(args: &Args) -> Result<()> {
     if let Some(gif) = &args.gif {
         check_gif_path(gif)?;
     }
-    let lights = expand(&args.light)?;
+    let lights = expand(&args.light, capture_distance(args.photo.fov))?;
     let scenes: Vec<Scene> = lights
         .iter()
         .map(|&l| scene(args, l))
@@ -126,14 +127,17 @@ fn scene(args: &Args, light: [f64; 3]) -> Result<Scene> {
             "light {light:?} is not above the surface: z must be > 0 (the material lies on z = 0)"
         );
     }
-    if args.view[2] <= 0.0 {
+    let v = match args.view {
+        Some(view) => Vec3d::from_array(view),
+        None => capture_position(capture_distance(args.photo.fov)),
+    };
+    if v.z <= 0.0 {
         bail!(
             "view {:?} is not above the surface: z must be > 0 (the material lies on z = 0)",
-            args.view
+            v.to_array()
         );
     }
     let l = Vec3d::from_array(light);
-    let v = Vec3d::from_array(args.view);
     let mut scene = Scene::new(
         if args.directional {
             Light::Directional(l)
@@ -162,6 +166,14 @@ pub struct PhotoArgs {
     /// estimating, e.g. to relight a large photo faster (at most 4096).
     #[arg(long, value_name = "N")]
     pub resize: Option<usize>,
+    /// The field of view of the camera that took the photo, in degrees (28: the paper's
+    /// training geometry; phone photos cropped to a centre square are often 35–50)
+    ///
+    /// Accepted: 5 to 120. It places the camera and its flash at (0,0,d), d = 1/tan(fov/2),
+    /// for the estimator, and, in relight, for the default --view and orbit distance (with a
+    /// saved material, only for those).
+    #[arg(long, value_name = "DEGREES", value_parser = parse_fov, default_value_t = CAPTURE_FOV_DEG)]
+    pub fov: f64,
 }
 
 /// Share of saturated pixels above which `relight`/`estimate` print a note: more than the
@@ -202,6 +214,7 @@ pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Resu
     if let Some(side) = how.resize {
         photo = photo.resized(side)?;
     }
+    photo = photo.with_fov(how.fov)?;
     if model.config().log_mode == LogMode::Ldr {
         let blown = photo.saturated_fraction(LDR_CLAMP);
         if blown > SATURATED_NOTE_ABOVE {
