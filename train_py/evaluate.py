@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> None:
         choices=["procedural", "test"],
         help="held-out procedural materials, or the real CC0 sets of materials/test",
     )
-    ap.add_argument("--materials", type=int, default=8)
+    ap.add_argument("--materials", type=int, default=None, help="how many (procedural: 8; test: all 19)")
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--hemisphere", type=int, default=128)
     ap.add_argument("--reflect", type=int, default=8)
@@ -165,20 +165,21 @@ def main(argv: list[str] | None = None) -> None:
     model = load_model(args.model) if args.model else None
     t0 = time.time()
     if args.set == "test":
-        files = materials.list_files("test")
+        files = materials.list_files("test")[: args.materials]
         sets = ((EVAL_SEED + i, materials.load_maps(f, args.size)) for i, f in enumerate(files))
         res = evaluate_maps(model, sets, len(files), args.hemisphere, args.reflect)
         what = f"{len(files)} real CC0 SVBRDFs of materials/test (never trained on) at {args.size}²"
     else:
-        seeds = [gen.HELD_OUT_SEED_BASE + 2000 + i for i in range(args.materials)]
+        seeds = [gen.HELD_OUT_SEED_BASE + 2000 + i for i in range(args.materials or 8)]
         res = evaluate_protocols(model, seeds, args.size, args.hemisphere, args.reflect)
-        what = f"{args.materials} held-out procedural SVBRDFs (seeds {seeds[0]}..{seeds[-1]}) at {args.size}²"
+        what = f"{len(seeds)} held-out procedural SVBRDFs (seeds {seeds[0]}..{seeds[-1]}) at {args.size}²"
     note = (
         f"{what}, "
         f"LDR 8-bit capture input; Reflect {args.reflect}, Identity 1, Hemisphere {args.hemisphere} "
         f"light/view pairs per material. Model: `{args.model}`. "
-        f"Command: `python -m train_py.evaluate --model {args.model} --set {args.set} --materials {args.materials} "
-        f"--size {args.size} --hemisphere {args.hemisphere}` ({time.time() - t0:.0f} s)."
+        f"Command: `python -m train_py.evaluate --model {args.model} --set {args.set} "
+        + (f"--materials {args.materials} " if args.materials else "")
+        + f"--size {args.size} --hemisphere {args.hemisphere}` ({time.time() - t0:.0f} s)."
     )
     md = markdown(res, "Evaluation: log-L1 and SSIM by protocol", note)
     print(md)

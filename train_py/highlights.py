@@ -34,6 +34,8 @@ ROUGHNESS_RANGE = (0.1, 0.4)
 SPECULAR_MIN = 0.04
 #: Light positions of the relights (surface units): moved 1.2 units off the camera axis.
 MOVED_LIGHTS = ((1.2, 0.0, 3.8), (-1.2, 0.0, 3.8), (0.0, 1.2, 3.8), (0.0, -1.2, 3.8))
+#: Image side the peak tolerance is stated for; other sizes scale distances to it.
+REFERENCE_SIZE = 256
 PEAK_SIGMA = 4.0
 PEAK_TOLERANCE_PX = 10.0
 CLIPPED_RATIO = (0.5, 2.0)
@@ -63,18 +65,20 @@ def blurred_peak(radiance: torch.Tensor) -> tuple[float, float]:
 
 
 def score(pred: torch.Tensor, truth: torch.Tensor, clipped: torch.Tensor) -> tuple[float, float | None]:
-    """Peak distance (px) and clipped-region mean radiance ratio (None when nothing clipped)."""
+    """Peak distance (in pixels of a 256² image) and clipped-region mean radiance ratio (None when
+    nothing clipped)."""
     (pr, pc), (tr, tc) = blurred_peak(pred), blurred_peak(truth)
-    dist = math.hypot(pr - tr, pc - tc)
+    dist = math.hypot(pr - tr, pc - tc) * REFERENCE_SIZE / pred.shape[1]
     if not clipped.any():
         return dist, None
     ratio = float(pred.mean(-1)[clipped].mean() / truth.mean(-1)[clipped].mean().clamp(min=1e-6))
     return dist, ratio
 
 
-def run(model, size: int = 256) -> dict[str, dict[str, float]]:
-    """Pass rates and medians for the model (if given) and the diffuse fit."""
-    files = materials.list_files("test")
+def run(model, size: int = REFERENCE_SIZE, count: int | None = None) -> dict[str, dict[str, float]]:
+    """Pass rates and medians for the model (if given) and the diffuse fit, over the first ``count``
+    test sets (default all)."""
+    files = materials.list_files("test")[:count]
     res: dict[str, list[tuple[float, float | None]]] = (
         {"model": [], "diffuse fit": []} if model else {"diffuse fit": []}
     )
@@ -113,15 +117,17 @@ def run(model, size: int = 256) -> dict[str, dict[str, float]]:
     return out
 
 
-def markdown(res: dict, model_path: str | None, seconds: float) -> str:
+def markdown(res: dict, model_path: str | None, size: int, seconds: float) -> str:
+    sets = res["diffuse fit"]["cases"] // len(MOVED_LIGHTS)
     lines = [
         "# Highlight test: glossy variants of materials/test, light moved from the camera",
         "",
-        f"{len(materials.list_files('test'))} test sets, roughness median {ROUGHNESS_RANGE[0]}–{ROUGHNESS_RANGE[1]}, "
-        f"256², 28° ideal 8-bit capture, {len(MOVED_LIGHTS)} moved lights each. Peak: blurred (σ {PEAK_SIGMA} px) "
+        f"{sets} test sets, roughness median {ROUGHNESS_RANGE[0]}–{ROUGHNESS_RANGE[1]}, "
+        f"{size}², 28° ideal 8-bit capture, {len(MOVED_LIGHTS)} moved lights each. Peak: blurred (σ {PEAK_SIGMA} px) "
         f"luminance maximum within {PEAK_TOLERANCE_PX:.0f} px of the GGX truth's. Clipped: mean radiance over "
         f"the pixels the capture clipped within {CLIPPED_RATIO[0]}–{CLIPPED_RATIO[1]}× the truth. Model: "
-        f"`{model_path}`. Command: `python -m train_py.highlights --model {model_path}` ({seconds:.0f} s).",
+        f"`{model_path}`. Command: `python -m train_py.highlights --model {model_path} --size {size}` "
+        f"({seconds:.0f} s). Peak errors are in pixels of a {REFERENCE_SIZE}² image.",
         "",
         "| method | peak within 10 px ↑ | median peak error (px) | clipped within 0.5–2× ↑ | median clipped ratio |",
         "|---|---:|---:|---:|---:|",
@@ -137,6 +143,8 @@ def markdown(res: dict, model_path: str | None, seconds: float) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", help="model .safetensors (omit: diffuse fit only)")
+    ap.add_argument("--size", type=int, default=REFERENCE_SIZE, help="image side (quick checks: smaller)")
+    ap.add_argument("--materials", type=int, default=None, help="only the first N test sets (quick checks)")
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("-o", "--output")
     args = ap.parse_args(argv)
@@ -146,8 +154,8 @@ def main(argv: list[str] | None = None) -> None:
 
     model = load_model(args.model) if args.model else None
     t0 = time.time()
-    res = run(model)
-    md = markdown(res, args.model, time.time() - t0)
+    res = run(model, args.size, args.materials)
+    md = markdown(res, args.model, args.size, time.time() - t0)
     print(md)
     if args.output:
         Path(args.output).write_text(md)

@@ -380,7 +380,10 @@ def train(args) -> dict:
         if rank == 0:
             print(f"initialised from {args.init_from} (BatchNorms frozen)", flush=True)
     elif args.init_from:
-        model.load_state_dict(torch.load(args.init_from, map_location=device, weights_only=False)["model"])
+        init = torch.load(args.init_from, map_location=device, weights_only=False)
+        model.load_state_dict(init["model"])
+        # A run that started from a model file keeps its BatchNorms frozen in every later stage.
+        state["frozen_bn"] = bool(init.get("frozen_bn", False))
         if rank == 0:
             print(f"initialised from {args.init_from}", flush=True)
     # A resumed run's checkpoint already holds the decoder; it only needs E.

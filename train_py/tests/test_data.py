@@ -1,11 +1,16 @@
 """Real material sets, their augmentation, and phone-like captures."""
 
 import math
+import os
+import subprocess
+import sys
 
 import torch
 
 from train_py import capture, gen, ggx, materials
 from train_py.train import draw_batch, make_batch
+
+from .conftest import REPO
 
 
 def test_orientations_turn_the_normals_with_the_image():
@@ -102,3 +107,18 @@ def test_draw_batch_mixes_real_and_procedural_materials():
     want_maps, want_input = make_batch([3, 4], 32, "cpu")
     torch.testing.assert_close(plain["diffuse"], want_maps["diffuse"])
     torch.testing.assert_close(plain_input, want_input)
+
+
+def test_train_gpu_script_runs_end_to_end_on_the_cpu(tmp_path):
+    # scripts/train-gpu is run on a CUDA machine without ../shared: it must work from a pack.
+    materials.pack(tmp_path / "pack", 32)
+    env = dict(os.environ, NAM_MATERIALS=str(tmp_path / "pack"), OUT=str(tmp_path / "out"), PYTHON=sys.executable)
+    cmd = [str(REPO / "scripts" / "train-gpu"), "--device", "cpu", "--minutes", "0.05", "--batch", "2", "--quick-eval"]
+    done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = tmp_path / "out"
+    assert (out / "default.safetensors").stat().st_size > 1_000_000
+    for which in ("old", "new"):
+        for table in ("eval", "test", "highlights"):
+            assert "| model |" in (out / f"{which}.{table}.md").read_text()
+    assert "done:" in (out / "train.log").read_text()
