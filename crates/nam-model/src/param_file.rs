@@ -11,20 +11,24 @@ use crate::render::ParamMap;
 
 impl ParamMap {
     /// Serialises as a `.nam` file; `model_sha256` identifies the weights that made it.
-    pub fn to_nam_bytes(&self, model_sha256: &str) -> Vec<u8> {
+    /// A map whose `data` is not `height · width · channels` values is an error.
+    pub fn to_nam_bytes(&self, model_sha256: &str) -> Result<Vec<u8>> {
         let config = serde_json::json!({
             "format": "nam-params", "version": 1,
             "height": self.height, "width": self.width, "model_sha256": model_sha256,
         });
         let meta = BTreeMap::from([("config".to_string(), config.to_string())]);
-        let mut tensors = BTreeMap::new();
-        if let Some(t) = Tensor::new(
-            vec![self.height, self.width, self.channels],
-            self.data.clone(),
-        ) {
-            tensors.insert("params".to_string(), t);
-        }
-        write_safetensors(&tensors, &meta)
+        let shape = vec![self.height, self.width, self.channels];
+        let params = Tensor::new(shape, self.data.clone()).ok_or(ModelError::Size {
+            what: "ParamMap data (height · width · channels)",
+            expected: self
+                .height
+                .saturating_mul(self.width)
+                .saturating_mul(self.channels),
+            found: self.data.len(),
+        })?;
+        let tensors = BTreeMap::from([("params".to_string(), params)]);
+        Ok(write_safetensors(&tensors, &meta)?)
     }
 
     /// Parses a `.nam` file; `label` names it in errors. Returns the map and the

@@ -14,7 +14,7 @@ fn sample() -> Vec<u8> {
         channels: c,
         data: (0..h * w * c).map(|k| k as f32 * 0.25 - 1.0).collect(),
     };
-    map.to_nam_bytes("ab12")
+    map.to_nam_bytes("ab12").unwrap()
 }
 
 fn parse(bytes: &[u8], tried: &mut usize) -> bool {

@@ -145,6 +145,28 @@ fn directional_relight_matches_per_pixel_path_with_constant_directions() {
 }
 
 #[test]
+fn param_map_with_the_wrong_number_of_values_is_not_written() {
+    let map = ParamMap {
+        height: 2,
+        width: 3,
+        channels: 64,
+        data: vec![0.5; 2 * 3 * 64 - 1],
+    };
+    let err = map.to_nam_bytes("abc123").unwrap_err();
+    assert!(
+        matches!(
+            err,
+            ModelError::Size {
+                expected: 384,
+                found: 383,
+                ..
+            }
+        ),
+        "{err}"
+    );
+}
+
+#[test]
 fn param_map_roundtrips_through_nam_bytes_and_rejects_mismatches() {
     let map = ParamMap {
         height: 2,
@@ -152,12 +174,12 @@ fn param_map_roundtrips_through_nam_bytes_and_rejects_mismatches() {
         channels: 64,
         data: (0..384).map(|i| i as f32 / 7.0).collect(),
     };
-    let bytes = map.to_nam_bytes("abc123");
+    let bytes = map.to_nam_bytes("abc123").unwrap();
     let (back, sha) = ParamMap::from_nam_bytes(&bytes, "m.nam").unwrap();
     assert_eq!(back, map);
     assert_eq!(sha, "abc123");
     // A model file is not a param map.
-    let model = weights().to_safetensors_bytes();
+    let model = weights().to_safetensors_bytes().unwrap();
     assert!(matches!(
         ParamMap::from_nam_bytes(&model, "w"),
         Err(ModelError::ParamFile { .. })
@@ -167,7 +189,7 @@ fn param_map_roundtrips_through_nam_bytes_and_rejects_mismatches() {
     let meta = std::collections::BTreeMap::from([("config".to_string(), cfg.to_string())]);
     let t = nam_weights::Tensor::new(vec![2, 3, 64], map.data.clone()).unwrap();
     let tensors = std::collections::BTreeMap::from([("params".to_string(), t)]);
-    let bytes = nam_weights::write_safetensors(&tensors, &meta);
+    let bytes = nam_weights::write_safetensors(&tensors, &meta).unwrap();
     assert!(matches!(
         ParamMap::from_nam_bytes(&bytes, "t"),
         Err(ModelError::ParamFile { .. })

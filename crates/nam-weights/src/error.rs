@@ -74,6 +74,9 @@ pub enum WeightsError {
         /// Shape stored in the file.
         found: Vec<usize>,
     },
+    /// The `safetensors` crate refused to serialise (a header over its 100 MB limit).
+    #[error("cannot write safetensors: {0}")]
+    Serialize(String),
     /// A tensor holds NaN or infinite values.
     #[error("{file}: tensor `{tensor}` contains a non-finite value at flat index {index}")]
     NonFinite {

@@ -21,7 +21,7 @@
 //! * [`expected_tensors`] — the complete `name → shape` list a config implies.
 //! * [`TensorFile`] — any safetensors file (golden fixtures, `.nam` param maps)
 //!   as `f32` tensors plus `__metadata__`, without model validation;
-//!   [`write_safetensors`] writes one (F32).
+//!   [`write_safetensors`] writes one (F32). Both go through the `safetensors` crate.
 //! * [`WeightsError`] — every error names the file, the tensor and expected vs found.
 //!
 //! Storage dtypes F32, F16, BF16 (and F64, for fixtures) are converted to `f32`.

@@ -1,19 +1,25 @@
-//! A small, defensive safetensors reader (and F32 writer).
+//! safetensors files as `f32` tensors, read and written through the `safetensors` crate.
 //!
-//! The reader checks every size against the length of the buffer *before*
-//! allocating, uses checked arithmetic throughout, and never panics on any
-//! input: a header that claims a terabyte tensor in a kilobyte file is an error,
-//! not an allocation.
+//! The crate checks the container before anything is sliced or allocated from a size in the
+//! file: the length prefix, the 100 MB header limit, the JSON header, shape × dtype sizes with
+//! overflow checks, and offsets that tile the data section exactly (no gap, overlap or trailing
+//! byte). This module adds what nam needs on top: conversion of the float dtypes to `f32`, and
+//! errors that name the file and, where the crate's error does not, the tensor.
 
-use std::collections::BTreeMap;
+use std::borrow::Cow;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
-use serde_json::Value;
+use safetensors::tensor::TensorInfo;
+use safetensors::{SafeTensorError, SafeTensors, View};
 
 use crate::error::{Result, WeightsError};
 
-/// Largest JSON header accepted, in bytes (the reference implementation's limit).
+/// Largest JSON header accepted, in bytes (the `safetensors` crate's limit).
 pub const MAX_HEADER_BYTES: usize = 100_000_000;
+
+/// Bytes of the little-endian `u64` header-length prefix.
+const PREFIX_BYTES: usize = 8;
 
 /// Storage dtypes this reader converts to `f32`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -29,22 +35,39 @@ pub enum Dtype {
 }
 
 impl Dtype {
-    fn parse(s: &str) -> Option<Self> {
-        match s {
-            "F32" => Some(Self::F32),
-            "F16" => Some(Self::F16),
-            "BF16" => Some(Self::BF16),
-            "F64" => Some(Self::F64),
+    fn from_safetensors(d: safetensors::Dtype) -> Option<Self> {
+        match d {
+            safetensors::Dtype::F32 => Some(Self::F32),
+            safetensors::Dtype::F16 => Some(Self::F16),
+            safetensors::Dtype::BF16 => Some(Self::BF16),
+            safetensors::Dtype::F64 => Some(Self::F64),
             _ => None,
         }
     }
 
-    /// Bytes per element.
-    pub fn size(self) -> usize {
+    /// Little-endian bytes (length checked by the crate) as `f32`.
+    fn to_f32(self, raw: &[u8]) -> Vec<f32> {
         match self {
-            Self::F16 | Self::BF16 => 2,
-            Self::F32 => 4,
-            Self::F64 => 8,
+            Self::F32 => raw
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect(),
+            Self::F16 => raw
+                .chunks_exact(2)
+                .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
+                .collect(),
+            Self::BF16 => raw
+                .chunks_exact(2)
+                .map(|c| half::bf16::from_le_bytes([c[0], c[1]]).to_f32())
+                .collect(),
+            Self::F64 => raw
+                .chunks_exact(8)
+                .map(|c| {
+                    let mut b = [0u8; 8];
+                    b.copy_from_slice(c);
+                    f64::from_le_bytes(b) as f32
+                })
+                .collect(),
         }
     }
 }
@@ -72,10 +95,26 @@ impl Tensor {
     pub fn data(&self) -> &[f32] {
         &self.data
     }
+}
 
-    /// Consumes the tensor, returning its elements.
-    pub fn into_data(self) -> Vec<f32> {
-        self.data
+/// A [`Tensor`] as the `safetensors` crate writes it: F32, little-endian.
+struct F32View<'a>(&'a Tensor);
+
+impl View for F32View<'_> {
+    fn dtype(&self) -> safetensors::Dtype {
+        safetensors::Dtype::F32
+    }
+
+    fn shape(&self) -> &[usize] {
+        &self.0.shape
+    }
+
+    fn data(&self) -> Cow<'_, [u8]> {
+        Cow::Owned(self.0.data.iter().flat_map(|v| v.to_le_bytes()).collect())
+    }
+
+    fn data_len(&self) -> usize {
+        self.0.data.len() * 4
     }
 }
 
@@ -86,14 +125,6 @@ pub struct TensorFile {
     metadata: BTreeMap<String, String>,
     tensors: BTreeMap<String, Tensor>,
     dtypes: BTreeMap<String, Dtype>,
-}
-
-struct Entry {
-    name: String,
-    dtype: Dtype,
-    shape: Vec<usize>,
-    start: usize,
-    end: usize,
 }
 
 impl TensorFile {
@@ -109,95 +140,37 @@ impl TensorFile {
 
     /// Parses an in-memory file (e.g. from `include_bytes!`); `label` names it in errors.
     pub fn from_bytes(bytes: &[u8], label: &str) -> Result<Self> {
-        let fmt = |reason: String| WeightsError::Format {
-            file: label.to_string(),
-            reason,
-        };
-        let len_bytes: [u8; 8] =
-            bytes
-                .get(..8)
-                .and_then(|s| s.try_into().ok())
-                .ok_or_else(|| {
-                    fmt(format!(
-                        "{} bytes is shorter than the 8-byte length prefix",
-                        bytes.len()
-                    ))
-                })?;
-        let header_len = u64::from_le_bytes(len_bytes);
-        let available = bytes.len() - 8;
-        let header_len = usize::try_from(header_len)
-            .ok()
-            .filter(|&n| n <= MAX_HEADER_BYTES && n <= available)
-            .ok_or_else(|| {
-                fmt(format!(
-                    "header length {header_len} exceeds the {available} bytes after the prefix (or the {MAX_HEADER_BYTES}-byte limit)"
-                ))
-            })?;
-        let header = &bytes[8..8 + header_len];
-        let data = &bytes[8 + header_len..];
-        let root: serde_json::Map<String, Value> = serde_json::from_slice(header)
-            .map_err(|e| fmt(format!("header is not a JSON object: {e}")))?;
-
-        let mut metadata = BTreeMap::new();
-        let mut entries = Vec::with_capacity(root.len());
-        for (name, value) in &root {
-            if name == "__metadata__" {
-                let obj = value
-                    .as_object()
-                    .ok_or_else(|| fmt("__metadata__ is not an object".into()))?;
-                for (k, v) in obj {
-                    let v = v
-                        .as_str()
-                        .ok_or_else(|| fmt(format!("__metadata__[{k:?}] is not a string")))?;
-                    metadata.insert(k.clone(), v.to_string());
-                }
-                continue;
-            }
-            entries.push(parse_entry(name, value, label)?);
-        }
-
-        // The byte buffer must be covered exactly, without holes or overlaps.
-        entries.sort_by_key(|e| (e.start, e.end));
-        let mut cursor = 0usize;
-        for e in &entries {
-            if e.start != cursor {
-                return Err(fmt(format!(
-                    "tensor `{}` starts at byte {} but the previous tensor ends at {cursor}",
-                    e.name, e.start
-                )));
-            }
-            if e.end > data.len() {
-                return Err(fmt(format!(
-                    "tensor `{}` ends at byte {} but the data section has only {} bytes",
-                    e.name,
-                    e.end,
-                    data.len()
-                )));
-            }
-            cursor = e.end;
-        }
-        if cursor != data.len() {
-            return Err(fmt(format!(
-                "tensors cover {cursor} bytes but the data section has {} bytes",
-                data.len()
-            )));
-        }
-
-        // All sizes are now bounded by the buffer length: allocation is safe.
+        let (header_bytes, header) =
+            SafeTensors::read_metadata(bytes).map_err(|e| container_error(bytes, label, &e))?;
+        // `read_metadata` checked that prefix + header + the tensors' extent is the whole buffer.
+        let data = &bytes[PREFIX_BYTES + header_bytes..];
         let mut tensors = BTreeMap::new();
         let mut dtypes = BTreeMap::new();
-        for e in entries {
-            let raw = &data[e.start..e.end];
-            let values = convert(raw, e.dtype);
-            dtypes.insert(e.name.clone(), e.dtype);
-            tensors.insert(
-                e.name,
-                Tensor {
-                    shape: e.shape,
-                    data: values,
-                },
-            );
+        // Offset order: the first unsupported tensor reported is the same on every run.
+        for name in header.offset_keys() {
+            let Some(info) = header.info(&name) else {
+                continue;
+            };
+            let dtype = Dtype::from_safetensors(info.dtype).ok_or_else(|| {
+                WeightsError::UnsupportedDtype {
+                    file: label.to_string(),
+                    tensor: name.clone(),
+                    dtype: info.dtype.to_string(),
+                }
+            })?;
+            let (start, end) = info.data_offsets;
+            let tensor = Tensor {
+                shape: info.shape.clone(),
+                data: dtype.to_f32(&data[start..end]),
+            };
+            dtypes.insert(name.clone(), dtype);
+            tensors.insert(name, tensor);
         }
+        let metadata = header
+            .metadata()
+            .as_ref()
+            .map(|m| m.iter().map(|(k, v)| (k.clone(), v.clone())).collect())
+            .unwrap_or_default();
         Ok(Self {
             label: label.to_string(),
             metadata,
@@ -263,123 +236,102 @@ pub(crate) fn get_checked<'a>(
     Ok(&t.data)
 }
 
-fn parse_entry(name: &str, value: &Value, label: &str) -> Result<Entry> {
-    let fmt = |reason: String| WeightsError::Format {
-        file: label.to_string(),
-        reason: format!("tensor `{name}`: {reason}"),
+/// A container error of the `safetensors` crate as a [`WeightsError::Format`] naming `label`.
+fn container_error(bytes: &[u8], label: &str, e: &SafeTensorError) -> WeightsError {
+    let available = bytes.len().saturating_sub(PREFIX_BYTES);
+    let reason = match e {
+        SafeTensorError::HeaderTooSmall => format!(
+            "{} bytes is shorter than the {PREFIX_BYTES}-byte length prefix",
+            bytes.len()
+        ),
+        SafeTensorError::HeaderTooLarge | SafeTensorError::InvalidHeaderLength => format!(
+            "header length {} exceeds the {available} bytes after the prefix (or the \
+             {MAX_HEADER_BYTES}-byte limit)",
+            header_len(bytes).unwrap_or_default()
+        ),
+        SafeTensorError::InvalidOffset(name) => format!(
+            "tensor `{name}`: data_offsets leave a gap before it or overlap the previous tensor"
+        ),
+        SafeTensorError::TensorInvalidInfo
+        | SafeTensorError::ValidationOverflow
+        | SafeTensorError::MisalignedSlice
+        | SafeTensorError::MetadataIncompleteBuffer => {
+            extent_error(bytes).unwrap_or_else(|| e.to_string())
+        }
+        other => other.to_string(),
     };
-    let obj = value
-        .as_object()
-        .ok_or_else(|| fmt("header entry is not an object".into()))?;
-    let dtype_str = obj
-        .get("dtype")
-        .and_then(Value::as_str)
-        .ok_or_else(|| fmt("missing string `dtype`".into()))?;
-    let dtype = Dtype::parse(dtype_str).ok_or_else(|| WeightsError::UnsupportedDtype {
+    WeightsError::Format {
         file: label.to_string(),
-        tensor: name.to_string(),
-        dtype: dtype_str.to_string(),
-    })?;
-    let shape = obj
-        .get("shape")
-        .and_then(Value::as_array)
-        .ok_or_else(|| fmt("missing array `shape`".into()))?
-        .iter()
-        .map(|d| d.as_u64().and_then(|d| usize::try_from(d).ok()))
-        .collect::<Option<Vec<usize>>>()
-        .ok_or_else(|| fmt("`shape` holds a non-integer or out-of-range dimension".into()))?;
-    let offsets = obj
-        .get("data_offsets")
-        .and_then(Value::as_array)
-        .filter(|a| a.len() == 2)
-        .ok_or_else(|| fmt("missing 2-element `data_offsets`".into()))?;
-    let off = |i: usize| {
-        offsets[i]
-            .as_u64()
-            .and_then(|v| usize::try_from(v).ok())
-            .ok_or_else(|| fmt("`data_offsets` holds a non-integer or out-of-range value".into()))
-    };
-    let (start, end) = (off(0)?, off(1)?);
-    let nbytes = shape
-        .iter()
-        .try_fold(1usize, |a, &d| a.checked_mul(d))
-        .and_then(|n| n.checked_mul(dtype.size()))
-        .ok_or_else(|| fmt(format!("shape {shape:?} overflows the address space")))?;
-    if end < start || end - start != nbytes {
-        return Err(fmt(format!(
-            "data_offsets [{start}, {end}] do not span the {nbytes} bytes of shape {shape:?} {dtype_str}"
-        )));
-    }
-    Ok(Entry {
-        name: name.to_string(),
-        dtype,
-        shape,
-        start,
-        end,
-    })
-}
-
-fn convert(raw: &[u8], dtype: Dtype) -> Vec<f32> {
-    match dtype {
-        Dtype::F32 => raw
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect(),
-        Dtype::F16 => raw
-            .chunks_exact(2)
-            .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
-            .collect(),
-        Dtype::BF16 => raw
-            .chunks_exact(2)
-            .map(|c| half::bf16::from_le_bytes([c[0], c[1]]).to_f32())
-            .collect(),
-        Dtype::F64 => raw
-            .chunks_exact(8)
-            .map(|c| {
-                let mut b = [0u8; 8];
-                b.copy_from_slice(c);
-                f64::from_le_bytes(b) as f32
-            })
-            .collect(),
+        reason,
     }
 }
 
-/// Serialises tensors as an F32 safetensors file with the given `__metadata__`.
-///
-/// Tensors are laid out in name order; the header is padded with spaces to a
-/// multiple of 8 bytes as the reference implementation does.
+/// Names the tensor behind a size or extent error, which the crate reports without a name:
+/// the first tensor, in offset order, whose shape overflows, whose byte range is not the size
+/// its shape and dtype imply, or that ends past the data section. Only called after the crate
+/// has parsed the header (so every entry is a valid [`TensorInfo`]) and rejected it.
+fn extent_error(bytes: &[u8]) -> Option<String> {
+    let header_end = usize::try_from(header_len(bytes)?)
+        .ok()?
+        .checked_add(PREFIX_BYTES)?;
+    let header = bytes.get(PREFIX_BYTES..header_end)?;
+    let data_len = bytes.len() - header_end;
+    let mut entries: HashMap<String, serde_json::Value> = serde_json::from_slice(header).ok()?;
+    entries.remove("__metadata__");
+    let mut infos: Vec<(String, TensorInfo)> = entries
+        .into_iter()
+        .map(|(name, v)| Some((name, serde_json::from_value(v).ok()?)))
+        .collect::<Option<_>>()?;
+    infos.sort_by(|a, b| (a.1.data_offsets, &a.0).cmp(&(b.1.data_offsets, &b.0)));
+    let mut covered = 0;
+    for (name, info) in &infos {
+        let (start, end) = info.data_offsets;
+        let (shape, dtype) = (&info.shape, info.dtype);
+        let bits = shape
+            .iter()
+            .try_fold(1usize, |a, &d| a.checked_mul(d))
+            .and_then(|n| n.checked_mul(dtype.bitsize()));
+        let reason = match bits {
+            None => format!("shape {shape:?} overflows the address space"),
+            Some(bits) if end.checked_sub(start) != Some(bits / 8) || bits % 8 != 0 => format!(
+                "data_offsets [{start}, {end}] do not span the {} bytes of shape {shape:?} {dtype}",
+                bits / 8
+            ),
+            Some(_) if end > data_len => {
+                format!("ends at byte {end} but the data section has only {data_len} bytes")
+            }
+            Some(_) => {
+                covered = end;
+                continue;
+            }
+        };
+        return Some(format!("tensor `{name}`: {reason}"));
+    }
+    (covered != data_len)
+        .then(|| format!("tensors cover {covered} bytes but the data section has {data_len} bytes"))
+}
+
+/// The header length the prefix claims, in bytes; `None` for a file shorter than the prefix.
+fn header_len(bytes: &[u8]) -> Option<u64> {
+    Some(u64::from_le_bytes(
+        bytes.get(..PREFIX_BYTES)?.try_into().ok()?,
+    ))
+}
+
+/// Serialises tensors as an F32 safetensors file with the given `__metadata__` (omitted when
+/// empty), through the `safetensors` crate: tensors in name order, the header padded with
+/// spaces to a multiple of 8 bytes. With more than one metadata entry their order in the header
+/// is the crate's (a hash map's), so only files with at most one entry are byte-reproducible.
 pub fn write_safetensors(
     tensors: &BTreeMap<String, Tensor>,
     metadata: &BTreeMap<String, String>,
-) -> Vec<u8> {
-    let mut header = serde_json::Map::new();
-    if !metadata.is_empty() {
-        let m = metadata
+) -> Result<Vec<u8>> {
+    let metadata = (!metadata.is_empty()).then(|| {
+        metadata
             .iter()
-            .map(|(k, v)| (k.clone(), Value::String(v.clone())))
-            .collect();
-        header.insert("__metadata__".into(), Value::Object(m));
-    }
-    let mut offset = 0usize;
-    for (name, t) in tensors {
-        let n = t.data.len() * 4;
-        header.insert(
-            name.clone(),
-            serde_json::json!({"dtype": "F32", "shape": t.shape, "data_offsets": [offset, offset + n]}),
-        );
-        offset += n;
-    }
-    let mut header = Value::Object(header).to_string().into_bytes();
-    while !header.len().is_multiple_of(8) {
-        header.push(b' ');
-    }
-    let mut out = Vec::with_capacity(8 + header.len() + offset);
-    out.extend_from_slice(&(header.len() as u64).to_le_bytes());
-    out.extend_from_slice(&header);
-    for t in tensors.values() {
-        for v in &t.data {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    out
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect()
+    });
+    safetensors::serialize(tensors.iter().map(|(n, t)| (n, F32View(t))), metadata)
+        .map_err(|e| WeightsError::Serialize(e.to_string()))
 }

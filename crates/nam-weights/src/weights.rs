@@ -230,7 +230,7 @@ impl Weights {
     }
 
     /// Serialises as an F32 model file with the config in `__metadata__`.
-    pub fn to_safetensors_bytes(&self) -> Vec<u8> {
+    pub fn to_safetensors_bytes(&self) -> Result<Vec<u8>> {
         let mut meta = BTreeMap::new();
         meta.insert("config".to_string(), self.config.to_json());
         write_safetensors(&self.tensors, &meta)

@@ -24,7 +24,8 @@ impl Rng {
 fn corrupted_files_give_errors_not_panics() {
     let good = Weights::random(micro_config(), 11)
         .unwrap()
-        .to_safetensors_bytes();
+        .to_safetensors_bytes()
+        .unwrap();
     Weights::from_bytes(&good, "base").unwrap();
     let header_end = 8 + u64::from_le_bytes(good[..8].try_into().unwrap()) as usize;
     let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
@@ -102,6 +103,7 @@ fn shape_products_that_overflow_are_errors() {
     let h = r#"{"t":{"dtype":"F32","shape":[4294967296,4294967296,16],"data_offsets":[0,0]}}"#;
     let err = TensorFile::from_bytes(&raw_file(h, 0), "ovf").unwrap_err();
     assert!(err.to_string().contains("overflow"), "{err}");
+    assert!(err.to_string().contains("tensor `t`"), "{err}");
 }
 
 #[test]
@@ -109,10 +111,36 @@ fn overlapping_or_gapped_offsets_are_errors() {
     let overlap = r#"{"a":{"dtype":"F32","shape":[2],"data_offsets":[0,8]},"b":{"dtype":"F32","shape":[2],"data_offsets":[4,12]}}"#;
     let gap = r#"{"a":{"dtype":"F32","shape":[1],"data_offsets":[0,4]},"b":{"dtype":"F32","shape":[1],"data_offsets":[8,12]}}"#;
     let trailing = r#"{"a":{"dtype":"F32","shape":[1],"data_offsets":[0,4]}}"#;
-    for (h, len) in [(overlap, 12), (gap, 12), (trailing, 8)] {
+    for (h, len, names) in [
+        (overlap, 12, "tensor `b`"),
+        (gap, 12, "tensor `b`"),
+        (trailing, 8, "cover 4 bytes"),
+    ] {
         let err = TensorFile::from_bytes(&raw_file(h, len), "off").unwrap_err();
         assert!(matches!(err, WeightsError::Format { .. }), "{err}");
+        let msg = err.to_string();
+        assert!(msg.starts_with("off: ") && msg.contains(names), "{msg}");
     }
+}
+
+#[test]
+fn size_and_length_errors_name_the_tensor_and_the_sizes() {
+    // 2 F32 values need 8 bytes, not 6.
+    let short = r#"{"w":{"dtype":"F32","shape":[2],"data_offsets":[0,6]}}"#;
+    let err = TensorFile::from_bytes(&raw_file(short, 6), "s").unwrap_err();
+    assert!(
+        err.to_string()
+            .contains("tensor `w`: data_offsets [0, 6] do not span the 8 bytes"),
+        "{err}"
+    );
+    let err = TensorFile::from_bytes(&[0; 5], "tiny").unwrap_err();
+    assert!(err.to_string().contains("shorter than the 8-byte"), "{err}");
+    let err = TensorFile::from_bytes(&raw_file("{}", 0)[..9], "cut").unwrap_err();
+    assert!(
+        err.to_string()
+            .contains("header length 2 exceeds the 1 bytes"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -22,7 +22,7 @@ fn meta(cfg: &ModelConfig) -> BTreeMap<String, String> {
 #[test]
 fn random_weights_roundtrip_through_safetensors_bytes() {
     let w = Weights::random(tiny_config(), 7).unwrap();
-    let bytes = w.to_safetensors_bytes();
+    let bytes = w.to_safetensors_bytes().unwrap();
     let back = Weights::from_bytes(&bytes, "roundtrip").unwrap();
     assert_eq!(back.config(), w.config());
     assert_eq!(back.tensors(), w.tensors());
@@ -62,7 +62,7 @@ fn missing_tensor_is_an_error_naming_it_and_its_shape() {
     let cfg = tiny_config();
     let mut t = tensors_of(&Weights::random(cfg.clone(), 1).unwrap());
     t.remove("est.enc2.0.down.weight");
-    let bytes = write_safetensors(&t, &meta(&cfg));
+    let bytes = write_safetensors(&t, &meta(&cfg)).unwrap();
     match Weights::from_bytes(&bytes, "m.safetensors") {
         Err(WeightsError::MissingTensor {
             file,
@@ -86,7 +86,7 @@ fn extra_tensor_is_an_error() {
         "est.enc1.0.down.weight".into(),
         Tensor::new(vec![4, 4, 1, 1], vec![0.0; 16]).unwrap(),
     );
-    let err = Weights::from_bytes(&write_safetensors(&t, &meta(&cfg)), "x").unwrap_err();
+    let err = Weights::from_bytes(&write_safetensors(&t, &meta(&cfg)).unwrap(), "x").unwrap_err();
     assert!(
         matches!(&err, WeightsError::UnexpectedTensor { tensor, .. } if tensor == "est.enc1.0.down.weight"),
         "{err}"
@@ -101,7 +101,7 @@ fn wrong_shape_is_an_error_with_expected_and_found() {
         "render.l3.weight".into(),
         Tensor::new(vec![128, 127], vec![0.0; 128 * 127]).unwrap(),
     );
-    let err = Weights::from_bytes(&write_safetensors(&t, &meta(&cfg)), "x").unwrap_err();
+    let err = Weights::from_bytes(&write_safetensors(&t, &meta(&cfg)).unwrap(), "x").unwrap_err();
     match err {
         WeightsError::ShapeMismatch {
             tensor,
@@ -138,13 +138,14 @@ fn input_skip_widens_the_head_and_a_mismatch_is_a_shape_error() {
     assert_eq!(head(&skip), vec![64, 8, 7, 7]);
     // Weights with the skip under a config without it (or the reverse) are rejected.
     let t = tensors_of(&Weights::random(skip.clone(), 2).unwrap());
-    let err = Weights::from_bytes(&write_safetensors(&t, &meta(&tiny_config())), "x").unwrap_err();
+    let err = Weights::from_bytes(&write_safetensors(&t, &meta(&tiny_config())).unwrap(), "x")
+        .unwrap_err();
     assert!(
         matches!(&err, WeightsError::ShapeMismatch { tensor, .. } if tensor == "est.head.weight"),
         "{err}"
     );
     let t = tensors_of(&Weights::random(tiny_config(), 2).unwrap());
-    assert!(Weights::from_bytes(&write_safetensors(&t, &meta(&skip)), "x").is_err());
+    assert!(Weights::from_bytes(&write_safetensors(&t, &meta(&skip)).unwrap(), "x").is_err());
 }
 
 #[test]
@@ -169,7 +170,7 @@ fn scope_prefixes_names_and_checks_shapes() {
 fn missing_or_inconsistent_config_is_an_error() {
     let cfg = tiny_config();
     let t = tensors_of(&Weights::random(cfg.clone(), 1).unwrap());
-    let no_meta = write_safetensors(&t, &BTreeMap::new());
+    let no_meta = write_safetensors(&t, &BTreeMap::new()).unwrap();
     assert!(matches!(
         Weights::from_bytes(&no_meta, "x"),
         Err(WeightsError::Config { .. })
@@ -181,11 +182,11 @@ fn missing_or_inconsistent_config_is_an_error() {
     let mut bad_render = cfg.clone();
     bad_render.render[0] = 95;
     for bad in [odd, bad_nd, bad_render] {
-        let bytes = write_safetensors(&t, &meta(&bad));
+        let bytes = write_safetensors(&t, &meta(&bad)).unwrap();
         let err = Weights::from_bytes(&bytes, "x").unwrap_err();
         assert!(matches!(err, WeightsError::Config { .. }), "{err}");
     }
-    let not_json = write_safetensors(&t, &BTreeMap::from([("config".into(), "{".into())]));
+    let not_json = write_safetensors(&t, &BTreeMap::from([("config".into(), "{".into())])).unwrap();
     assert!(matches!(
         Weights::from_bytes(&not_json, "x"),
         Err(WeightsError::Config { .. })
@@ -210,7 +211,7 @@ fn non_finite_weight_is_an_error() {
         "est.head.weight".into(),
         Tensor::new(vec![64, 4, 7, 7], data).unwrap(),
     );
-    let err = Weights::from_bytes(&write_safetensors(&t, &meta(&cfg)), "x").unwrap_err();
+    let err = Weights::from_bytes(&write_safetensors(&t, &meta(&cfg)).unwrap(), "x").unwrap_err();
     assert!(
         matches!(err, WeightsError::NonFinite { index: 5, .. }),
         "{err}"
@@ -271,7 +272,7 @@ fn file_loading_reports_the_path() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("model.safetensors");
     let w = Weights::random(tiny_config(), 9).unwrap();
-    std::fs::write(&path, w.to_safetensors_bytes()).unwrap();
+    std::fs::write(&path, w.to_safetensors_bytes().unwrap()).unwrap();
     assert_eq!(Weights::from_file(&path).unwrap().tensors(), w.tensors());
     let missing = dir.path().join("nope.safetensors");
     let err = Weights::from_file(&missing).unwrap_err();

@@ -73,8 +73,8 @@ impl NeuralMaterial {
     }
 
     /// Serialises to `.nam` bytes (safetensors, one F32 tensor `params` [H, W, 64]).
-    pub fn to_bytes(&self) -> Vec<u8> {
-        self.params.to_nam_bytes(&self.model_fingerprint)
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
+        Ok(self.params.to_nam_bytes(&self.model_fingerprint)?)
     }
 
     /// Parses `.nam` bytes; `label` names the source in errors.
@@ -92,7 +92,7 @@ impl NeuralMaterial {
     /// Writes a `.nam` file atomically (a temporary file in the same folder, then rename), so
     /// an interrupted write never leaves a half-written file under `path`.
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
-        crate::io::write_atomic(path.as_ref(), &self.to_bytes())
+        crate::io::write_atomic(path.as_ref(), &self.to_bytes()?)
     }
 }
 

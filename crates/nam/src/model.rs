@@ -66,7 +66,7 @@ impl NeuralModel {
 
     /// Wraps already validated weights (e.g. [`Weights::random`] in tests).
     pub fn from_weights(weights: Weights) -> Result<Self> {
-        let fingerprint = hex_sha256(&weights.to_safetensors_bytes());
+        let fingerprint = hex_sha256(&weights.to_safetensors_bytes()?);
         Self::build(weights, fingerprint)
     }
 

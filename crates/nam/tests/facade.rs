@@ -97,7 +97,7 @@ fn material_round_trips_through_nam_file_and_rejects_other_models() {
 #[test]
 fn corrupt_nam_file_is_a_clear_error() {
     let model = tiny();
-    let bytes = grey_material(&model, 8).to_bytes();
+    let bytes = grey_material(&model, 8).to_bytes().unwrap();
     for cut in [0, 7, 8, 100, bytes.len() - 1] {
         let err = NeuralMaterial::from_bytes(&bytes[..cut], "cut.nam").unwrap_err();
         assert!(err.to_string().contains("cut.nam"), "{err}");
