@@ -36,5 +36,6 @@ mod kernel_tests;
 pub use context::{GpuContext, MatmulVariant};
 pub use device::{DeviceHandles, request_device};
 pub use error::{GpuError, Result};
-pub use network::{GpuNetwork, MAX_RENDER_ROWS, UNET_MULTIPLE};
+pub use nam_weights::UNET_MULTIPLE;
+pub use network::{GpuNetwork, MAX_RENDER_ROWS};
 pub use shaders::Precision;

@@ -2,7 +2,9 @@
 
 use std::collections::HashMap;
 
-use nam_weights::Weights;
+use nam_weights::{
+    DirectionWork, ModelConfig, RenderWork, UNET_MULTIPLE, Weights, radiance_from_log,
+};
 
 use crate::context::{DeviceBuffer, DeviceTexture, Dispatch, GpuContext, MatmulVariant};
 use crate::error::{GpuError, Result};
@@ -19,9 +21,6 @@ pub const MAX_RENDER_ROWS: u32 = 16_384;
 /// Estimate plans kept per padded image size before the cache is cleared.
 const MAX_CACHED_PLANS: usize = 4;
 
-/// The U-Net's down-sampling factor: inputs are replicate-padded to multiples of it.
-pub const UNET_MULTIPLE: usize = 8;
-
 /// The neural material network on a wgpu device: weights uploaded once, pipelines built
 /// lazily, per-size execution plans cached.
 ///
@@ -33,6 +32,8 @@ pub const UNET_MULTIPLE: usize = 8;
 pub struct GpuNetwork {
     ctx: GpuContext,
     precision: Precision,
+    /// The architecture: the multiply-add counts derive from it.
+    config: ModelConfig,
     unet: UnetWeights,
     render: RenderWeights,
     estimate_plans: HashMap<(u32, u32), EstimatePlan>,
@@ -427,6 +428,7 @@ impl GpuNetwork {
         Ok(Self {
             ctx,
             precision,
+            config: weights.config().clone(),
             unet,
             render,
             estimate_plans: HashMap::new(),
@@ -454,64 +456,21 @@ impl GpuNetwork {
         Ok(())
     }
 
-    /// Multiply-adds of one `estimate` on an `h x w` image (after padding to multiples of 8),
-    /// counting every convolution tap as the CPU and torch do.
+    /// Multiply-adds of one `estimate` on an `h x w` image (after padding to multiples of
+    /// [`UNET_MULTIPLE`]), counting every convolution tap as the CPU and torch do
+    /// ([`ModelConfig::estimate_macs`]).
     pub fn estimate_macs(&self, h: usize, w: usize) -> u64 {
-        let u = &self.unet;
-        let hw = (h.next_multiple_of(UNET_MULTIPLE) * w.next_multiple_of(UNET_MULTIPLE)) as u64;
-        let c = u64::from(u.width);
-        let ha = |cin: u64, cout: u64, hw_in: u64, hw_out: u64| {
-            9 * (2 * cout * cin * hw_out
-                + cout * cin * hw_in
-                + (cout / 2) * cout * hw_out
-                + (cout - cout / 2) * cin * hw_out)
-        };
-        let basic = |b: &BasicWeights, hw_in: u64| {
-            let (cin, cout) = (u64::from(b.cin), u64::from(b.cout));
-            let hw_out = hw_in / u64::from(b.stride * b.stride);
-            ha(cin, cout, hw_in, hw_out)
-                + ha(cout, cout, hw_out, hw_out)
-                + b.down.as_ref().map_or(0, |_| cout * cin * hw_out)
-        };
-        let reverse = |r: &ReverseWeights, hw_in: u64| {
-            let (cin, cout) = (u64::from(r.cin), u64::from(r.cout));
-            16 * cin * cout * hw_in + 9 * cout * cout * 4 * hw_in + 4 * cin * cout * hw_in
-        };
-        let (cin, pc) = (u64::from(u.in_channels), u64::from(u.param_channels));
-        let mut macs = 49 * hw * (c * cin + u64::from(u.head_in_channels()) * pc);
-        let mut level = hw;
-        for stage in &u.enc {
-            macs += basic(&stage[0], level);
-            level /= u64::from(stage[0].stride * stage[0].stride);
-            macs += basic(&stage[1], level);
-        }
-        for (r, b) in u.dec_reverse.iter().zip(&u.dec_basic) {
-            macs += reverse(r, level);
-            level *= 4;
-            macs += basic(b, level);
-        }
-        macs + basic(&u.dec4[0], hw) + basic(&u.dec4[1], hw)
+        self.config.estimate_macs(h, w)
     }
 
     /// Multiply-adds of `M_render` per query as stored in the file (l0 and l1 unfolded),
     /// the convention of DESIGN §4 (634,470 for the standard widths).
     pub fn render_macs_per_query(&self) -> u64 {
-        let r = &self.render;
-        let nd: u64 =
-            r.nd.iter()
-                .map(|l| u64::from(l.out) * u64::from(l.inp))
-                .sum();
-        // The folded l0·l1 [out, in] stands for l0 [l0_out, in] and l1 [out, l0_out].
-        let unfolded: u64 = r.mlp.first().map_or(0, |l| {
-            u64::from(r.l0_out) * (u64::from(l.inp) + u64::from(l.out))
-        });
-        let rest: u64 = r
-            .mlp
-            .iter()
-            .skip(1)
-            .map(|l| u64::from(l.out) * u64::from(l.inp))
-            .sum();
-        nd + unfolded + rest
+        self.config.render_macs(RenderWork {
+            folded: false,
+            prepared: false,
+            directions: DirectionWork::PerOutput,
+        })
     }
 
     /// Storage precision of this network.
@@ -1023,7 +982,7 @@ impl GpuNetwork {
     /// `params`: `[N, param_channels]` rows; `dirs`: `[N, 9]` rows `[ωi, ωo, ωh]`.
     pub fn render(&mut self, params: &[f32], dirs: &[f32]) -> Result<Vec<f32>> {
         let (log, _) = self.run_render(params, RowDirections::Each(dirs), false)?;
-        Ok(log.into_iter().map(radiance).collect())
+        Ok(log.into_iter().map(radiance_from_log).collect())
     }
 
     /// As [`GpuNetwork::render`] but returns the log-space output `y` `[N, 3]`.
@@ -1049,7 +1008,7 @@ impl GpuNetwork {
         Ok(self
             .render_log_directional(params, dirs)?
             .into_iter()
-            .map(radiance)
+            .map(radiance_from_log)
             .collect())
     }
 
@@ -1073,17 +1032,13 @@ impl GpuNetwork {
     }
 
     /// Multiply-adds per row of [`GpuNetwork::render_directional`]: the render MLP as
-    /// stored (l0·l1 folded), with the one-off ND_enc row not counted.
+    /// uploaded (l0·l1 folded), the shared ND_enc features still multiplied per row, the
+    /// one-off ND_enc row not counted.
     pub fn render_directional_macs_per_query(&self) -> u64 {
-        self.render
-            .mlp
-            .iter()
-            .map(|l| u64::from(l.out) * u64::from(l.inp))
-            .sum()
+        self.config.render_macs(RenderWork {
+            folded: true,
+            prepared: false,
+            directions: DirectionWork::FeaturesShared,
+        })
     }
-}
-
-/// Radiance `max(expm1(y), 0)` of a log-space output value.
-fn radiance(y: f32) -> f32 {
-    y.exp_m1().max(0.0)
 }

@@ -84,8 +84,6 @@ pub(crate) struct RenderWeights {
     pub param_channels: u32,
     pub nd: Vec<Linear>,
     pub mlp: Vec<Linear>,
-    /// Width between the folded l0 and l1 (for FLOP accounting).
-    pub l0_out: u32,
 }
 
 fn u(v: usize, what: &'static str) -> Result<u32> {
@@ -312,6 +310,5 @@ pub(crate) fn upload_render(
         param_channels: u(cfg.param_channels, "param_channels")?,
         nd,
         mlp,
-        l0_out: u(r[1], "width")?,
     })
 }

@@ -1,12 +1,13 @@
 //! The whole network on the GPU against the torch golden fixtures (docs/FORMAT.md,
 //! `tests/fixtures/net_tiny*.safetensors`, written by `python -m train_py.golden`), in f32 and
-//! f16. Tests print a reason and pass only when no GPU adapter exists.
+//! f16, and a saturated network's radiance against the CPU's cap at f32::MAX. Tests print a
+//! reason and pass only when no GPU adapter exists.
 
 use std::path::PathBuf;
 use std::sync::{Mutex, OnceLock};
 
 use nam_gpu::{DeviceHandles, GpuNetwork, MatmulVariant, Precision};
-use nam_weights::{TensorFile, Weights};
+use nam_weights::{Tensor, TensorFile, Weights, radiance_from_log};
 
 /// f32 GPU vs torch f32: different summation orders through ~40 layers of the U-Net
 /// (InstanceNorm divides by small standard deviations), so a few 1e-5 relative to the map's
@@ -21,6 +22,9 @@ const ESTIMATE_F16_MEAN_TOL: f32 = 1.5e-2;
 const ESTIMATE_F32_MEAN_TOL: f32 = 2e-5;
 /// The render MLP folds l1·l0 in f64 and sums in a different order than torch.
 const RENDER_F32_TOL: f32 = 5e-5;
+/// Scale of the last render layer that drives the fixture's log outputs to ±1e3 and beyond,
+/// past ln(f32::MAX) ≈ 88.7, where `expm1` alone overflows to +Inf.
+const SATURATE: f32 = 1e4;
 /// f16 storage of weights and activations, 9 layers.
 const RENDER_F16_TOL: f32 = 1e-2;
 /// Directional plan vs the general plan, f32: the same kernels on the same rows, the ND_enc
@@ -254,4 +258,46 @@ fn directional_render_matches_general_path_f32() {
 #[test]
 fn directional_render_matches_general_path_f16() {
     directional_case(Precision::F16, DIRECTIONAL_F16_TOL);
+}
+
+/// A saturated network gives finite radiance on the GPU path, as on the CPU: the log values
+/// read back go through the one `radiance_from_log` (capped at about f32::MAX), not +Inf.
+#[test]
+fn saturated_log_output_gives_finite_radiance_as_on_the_cpu() {
+    let (weights, golden) = load();
+    let last = format!("render.l{}.weight", weights.config().render.len() - 2);
+    let mut tensors = weights.tensors().clone();
+    let t = &tensors[&last];
+    let hot: Vec<f32> = t.data().iter().map(|v| v * SATURATE).collect();
+    let hot = Tensor::new(t.shape().to_vec(), hot).unwrap_or_else(|| panic!("{last}"));
+    tensors.insert(last, hot);
+    let saturated = Weights::from_tensors(weights.config().clone(), tensors, "saturated")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let Some(mut net) = network(Precision::F32, &saturated) else {
+        return;
+    };
+    let (params, _) = tensor(&golden, "r_params");
+    let (dirs, _) = tensor(&golden, "r_dirs");
+    let log = net
+        .render_log(params, dirs)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let radiance = net.render(params, dirs).unwrap_or_else(|e| panic!("{e}"));
+    let capped = radiance_from_log(f32::INFINITY);
+    assert!(capped.is_finite() && capped > 1e38, "{capped}");
+    let mut saturated_values = 0;
+    for (&y, &r) in log.iter().zip(&radiance) {
+        assert!(r.is_finite() && r >= 0.0, "log {y} -> radiance {r}");
+        if y > 88.8 {
+            assert_eq!(r, capped, "log {y}");
+            saturated_values += 1;
+        }
+    }
+    eprintln!(
+        "saturated: {saturated_values} of {} values capped",
+        log.len()
+    );
+    assert!(
+        saturated_values > 0,
+        "the test needs log values past ln(f32::MAX)"
+    );
 }

@@ -41,8 +41,9 @@ mod unet;
 pub use bf16::bf16_supported;
 pub use error::{ModelError, Result};
 pub use nam_ggx::geometry;
+pub use nam_weights::radiance_from_log;
 pub use prepared::{PreparedMaterial, Roi};
-pub use render::{DEFAULT_TILE, ParamMap, RenderNet, Rgb, radiance_from_log};
+pub use render::{DEFAULT_TILE, ParamMap, RenderNet, Rgb};
 pub use unet::{MAX_SIDE, UNet};
 
 use nam_weights::Weights;

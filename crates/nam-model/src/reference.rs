@@ -6,7 +6,7 @@
 
 use std::cell::RefCell;
 
-use nam_weights::{Scope, Weights};
+use nam_weights::{Scope, Weights, radiance_from_log};
 
 use crate::encoding::{direction_triple, encode_f64, encode_into};
 use crate::error::{Result, check_finite, check_len};
@@ -582,7 +582,7 @@ fn render_impl<A: Acc>(
         }
     }
     let log = [h[0], h[1], h[2]];
-    let radiance = log.map(|y| y.exp_m1().max(0.0));
+    let radiance = log.map(radiance_from_log);
     Ok(RenderTrace {
         encoded,
         nd,

@@ -13,7 +13,7 @@
 //!   accumulated), caller-given features, or one constant vector when ωi, ωo
 //!   are the same at every pixel (directional light, orthographic view).
 
-use nam_weights::Weights;
+use nam_weights::{DirectionWork, ModelConfig, RenderWork, Weights, radiance_from_log};
 use rayon::prelude::*;
 
 use crate::Source;
@@ -191,6 +191,10 @@ pub struct RenderNet {
     bf16: Option<(Vec<Bf16Dense>, Vec<Bf16Dense>)>,
     /// Hash of the first render layer: ties a prepared material to this net.
     pub(crate) first_id: u64,
+    /// The architecture: the multiply-add counts derive from it.
+    config: ModelConfig,
+    /// `render.l0·l1` folded into `render[0]`.
+    folded: bool,
 }
 
 /// Per-thread scratch of one tile.
@@ -285,6 +289,8 @@ impl RenderNet {
             tile: DEFAULT_TILE,
             bf16: None,
             first_id,
+            config: cfg.clone(),
+            folded: fold,
         })
     }
 
@@ -349,21 +355,23 @@ impl RenderNet {
         self.render[0].out
     }
 
-    /// Multiply-adds per output pixel/query of a render path: everything
+    /// Multiply-adds per output pixel/query of a render path
+    /// ([`ModelConfig::render_macs`] with this net's folding): everything
     /// (`prepared = false, constant_directions = false`: the general path)
     /// minus `W_p·p` when the material is prepared, minus the encoding's
     /// ND_enc and `W_d·f` when ωi, ωo are the same for every output.
     pub fn macs_per_output(&self, prepared: bool, constant_directions: bool) -> usize {
-        let first = &self.render[0];
-        let material = if prepared { 0 } else { self.params * first.out };
         let directions = if constant_directions {
-            0
+            DirectionWork::Shared
         } else {
-            self.nd.iter().map(|l| l.inp * l.out).sum::<usize>()
-                + (first.inp - self.params) * first.out
+            DirectionWork::PerOutput
         };
-        let tail: usize = self.render[1..].iter().map(|l| l.inp * l.out).sum();
-        material + directions + tail
+        let macs = self.config.render_macs(RenderWork {
+            folded: self.folded,
+            prepared,
+            directions,
+        });
+        usize::try_from(macs).unwrap_or(usize::MAX)
     }
 
     fn max_hidden(&self) -> usize {
@@ -803,31 +811,4 @@ fn triple(d: &[f32]) -> [f32; 9] {
     let mut c = [0.0f32; 9];
     c.copy_from_slice(d);
     c
-}
-
-/// ln(f32::MAX), rounded down: the largest log value whose `expm1` is finite.
-const LN_F32_MAX: f32 = 88.722_83;
-
-/// `max(expm1(y), 0)`: log-space network output to radiance (NaN maps to 0).
-#[inline]
-pub fn radiance_from_log(y: f32) -> f32 {
-    // Capped at ln(f32::MAX) so a saturated network gives f32::MAX, never +Inf.
-    let r = if y > LN_F32_MAX { LN_F32_MAX } else { y }.exp_m1();
-    if r > 0.0 { r } else { 0.0 }
-}
-
-#[cfg(test)]
-mod radiance_tests {
-    use super::radiance_from_log;
-
-    #[test]
-    fn radiance_is_finite_and_non_negative_for_every_log_value() {
-        for y in [100.0, 1e30, f32::INFINITY, f32::MAX] {
-            let r = radiance_from_log(y);
-            assert!(r.is_finite() && r > 1e38, "{y} -> {r}");
-        }
-        assert_eq!(radiance_from_log(f32::NAN), 0.0);
-        assert_eq!(radiance_from_log(-5.0), 0.0);
-        assert!((radiance_from_log(1.0) - (1f32.exp() - 1.0)).abs() < 1e-6);
-    }
 }

@@ -25,7 +25,7 @@ const EW_PIXELS: usize = 1024;
 const TRANSPOSE_BELOW: usize = 16;
 
 pub(crate) fn pad_multiple(n: usize) -> usize {
-    n.div_ceil(8) * 8
+    n.next_multiple_of(nam_weights::UNET_MULTIPLE)
 }
 
 pub(crate) fn check_image(height: usize, width: usize) -> Result<()> {

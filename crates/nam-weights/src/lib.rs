@@ -18,7 +18,10 @@
 //!   (for `include_bytes!`), [`Weights::random`] (seeded, for tests/benches),
 //!   [`Weights::get`] / [`Weights::scope`] / [`Scope::get`], [`Weights::tensors`],
 //!   [`Weights::to_safetensors_bytes`].
-//! * [`expected_tensors`] — the complete `name → shape` list a config implies.
+//! * [`expected_tensors`] — the complete `name → shape` list a config implies;
+//!   [`ModelConfig::estimate_macs`] and [`ModelConfig::render_macs`] — the multiply-adds of
+//!   `M_est` and `M_render` derived from the same layout; [`UNET_MULTIPLE`] — the padding.
+//! * [`radiance_from_log`] — the networks' log-space output as radiance.
 //! * [`TensorFile`] — any safetensors file (golden fixtures, `.nam` param maps)
 //!   as `f32` tensors plus `__metadata__`, without model validation;
 //!   [`write_safetensors`] writes one (F32). Both go through the `safetensors` crate.
@@ -31,10 +34,14 @@
 
 mod config;
 mod error;
+mod layout;
+mod radiance;
 mod tensor_file;
 mod weights;
 
 pub use config::{LogMode, MAX_WIDTH, ModelConfig, Slopes};
 pub use error::{Result, WeightsError};
+pub use layout::{DirectionWork, RenderWork, UNET_MULTIPLE, expected_tensors};
+pub use radiance::radiance_from_log;
 pub use tensor_file::{Dtype, MAX_HEADER_BYTES, Tensor, TensorFile, write_safetensors};
-pub use weights::{Scope, SplitMix64, Weights, expected_tensors};
+pub use weights::{Scope, SplitMix64, Weights};

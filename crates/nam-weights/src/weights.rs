@@ -5,78 +5,8 @@ use std::path::Path;
 
 use crate::config::ModelConfig;
 use crate::error::{Result, WeightsError};
+use crate::layout::expected_tensors;
 use crate::tensor_file::{Tensor, TensorFile, get_checked, write_safetensors};
-
-/// The complete `name → shape` list of a model file, derived from its config
-/// (docs/FORMAT.md, "Tensor names"), in network order.
-pub fn expected_tensors(cfg: &ModelConfig) -> Vec<(String, Vec<usize>)> {
-    let mut out = Vec::new();
-    let c = cfg.width;
-    out.push(("est.stem.weight".into(), vec![c, cfg.in_channels, 7, 7]));
-    let widths = [c, 2 * c, 4 * c, 8 * c];
-    let mut prev = c;
-    for (k, &w) in widths.iter().enumerate() {
-        let stride = if k == 0 { 1 } else { 2 };
-        basic_block(&mut out, &format!("est.enc{}.0", k + 1), prev, w, stride);
-        basic_block(&mut out, &format!("est.enc{}.1", k + 1), w, w, 1);
-        prev = w;
-    }
-    reverse_block(&mut out, "est.dec1.0", 8 * c, 8 * c);
-    basic_block(&mut out, "est.dec1.1", 8 * c, 8 * c, 1);
-    reverse_block(&mut out, "est.dec2.0", 12 * c, 4 * c);
-    basic_block(&mut out, "est.dec2.1", 4 * c, 4 * c, 1);
-    reverse_block(&mut out, "est.dec3.0", 6 * c, 2 * c);
-    basic_block(&mut out, "est.dec3.1", 2 * c, 2 * c, 1);
-    basic_block(&mut out, "est.dec4.0", 3 * c, c, 1);
-    basic_block(&mut out, "est.dec4.1", c, c, 1);
-    out.push((
-        "est.head.weight".into(),
-        vec![cfg.param_channels, cfg.head_in_channels(), 7, 7],
-    ));
-    for (i, pair) in cfg.nd_enc.windows(2).enumerate() {
-        out.push((format!("nd_enc.l{i}.weight"), vec![pair[1], pair[0]]));
-    }
-    for (i, pair) in cfg.render.windows(2).enumerate() {
-        out.push((format!("render.l{i}.weight"), vec![pair[1], pair[0]]));
-    }
-    out
-}
-
-fn ha(out: &mut Vec<(String, Vec<usize>)>, p: &str, cin: usize, cout: usize) {
-    out.push((format!("{p}.gate.weight"), vec![cout, cin, 3, 3]));
-    out.push((format!("{p}.feat.weight"), vec![cout, cin, 3, 3]));
-    out.push((format!("{p}.inc1a.weight"), vec![cout, cin, 3, 3]));
-    out.push((format!("{p}.inc1b.weight"), vec![cout / 2, cout, 3, 3]));
-    out.push((format!("{p}.inc2.weight"), vec![cout / 2, cin, 3, 3]));
-}
-
-fn basic_block(
-    out: &mut Vec<(String, Vec<usize>)>,
-    p: &str,
-    cin: usize,
-    cout: usize,
-    stride: usize,
-) {
-    ha(out, &format!("{p}.ha1"), cin, cout);
-    out.push((format!("{p}.bn1.scale"), vec![cout]));
-    out.push((format!("{p}.bn1.shift"), vec![cout]));
-    ha(out, &format!("{p}.ha2"), cout, cout);
-    out.push((format!("{p}.bn2.scale"), vec![cout]));
-    out.push((format!("{p}.bn2.shift"), vec![cout]));
-    if cin != cout || stride != 1 {
-        out.push((format!("{p}.down.weight"), vec![cout, cin, 1, 1]));
-        out.push((format!("{p}.down.bias"), vec![cout]));
-    }
-}
-
-fn reverse_block(out: &mut Vec<(String, Vec<usize>)>, p: &str, cin: usize, cout: usize) {
-    out.push((format!("{p}.up4.weight"), vec![cin, cout, 4, 4]));
-    out.push((format!("{p}.up4.bias"), vec![cout]));
-    out.push((format!("{p}.conv.weight"), vec![cout, cout, 3, 3]));
-    out.push((format!("{p}.conv.bias"), vec![cout]));
-    out.push((format!("{p}.up2.weight"), vec![cin, cout, 2, 2]));
-    out.push((format!("{p}.up2.bias"), vec![cout]));
-}
 
 /// A model's config and its tensors, validated against each other: every tensor
 /// the architecture needs is present with the right shape, there are no extra

@@ -78,55 +78,6 @@ pub(super) fn measure(cases: Vec<Case<'_>>, repeat: usize) -> Result<Vec<Row>> {
         .collect())
 }
 
-/// Multiply-adds of `M_est` at `side`² counted from the conv weight shapes
-/// (docs/FORMAT.md names): conv `[out, in, k, k]` costs `out·in·k²` per output
-/// pixel, transposed conv `[in, out, k, k]` the same per input pixel. Stage
-/// resolutions follow DESIGN §4 (encoder strides 1, 2, 2, 2; decoder ×2 up).
-fn unet_macs(model: &NeuralModel, side: usize) -> f64 {
-    let s = side.div_ceil(8) * 8;
-    let mut total = 0.0;
-    for (name, t) in model.weights().tensors() {
-        let sh = t.shape();
-        let Some(path) = name.strip_prefix("est.") else {
-            continue;
-        };
-        if sh.len() != 4 {
-            continue;
-        }
-        let per_pixel = (sh[0] * sh[1] * sh[2] * sh[3]) as f64;
-        let parts: Vec<&str> = path.split('.').collect();
-        let stage =
-            |p: &str, prefix: &str| p.strip_prefix(prefix).and_then(|k| k.parse::<u32>().ok());
-        // Resolution (side) the weight is applied at.
-        let res = match parts.as_slice() {
-            ["stem", ..] | ["head", ..] => s,
-            [enc, block, rest @ ..] if stage(enc, "enc").is_some() => {
-                let k = stage(enc, "enc").unwrap_or(1);
-                let r = s >> (k - 1);
-                // inc1a of a strided first block runs at the input resolution.
-                if *block == "0" && k > 1 && rest.get(1) == Some(&"inc1a") {
-                    2 * r
-                } else {
-                    r
-                }
-            }
-            [dec, block, rest @ ..] if stage(dec, "dec").is_some() => {
-                let k = stage(dec, "dec").unwrap_or(4);
-                let out = if k >= 3 { s } else { s >> (3 - k) };
-                let up = matches!(rest.first(), Some(&"up4") | Some(&"up2"));
-                if *block == "0" && k < 4 && up {
-                    out / 2
-                } else {
-                    out
-                }
-            }
-            _ => s,
-        };
-        total += per_pixel * (res * res) as f64;
-    }
-    total
-}
-
 /// Runs the subcommand.
 pub fn run(args: &Args) -> Result<()> {
     let model = match &args.model {
@@ -192,7 +143,7 @@ pub fn run(args: &Args) -> Result<()> {
         (
             format!("estimate {s}² (M_est)"),
             0,
-            2.0 * unet_macs(&model, s),
+            2.0 * model.config().estimate_macs(s, s) as f64,
             Box::new(|| {
                 cpu.unet.estimate(&input, s, s)?;
                 Ok(())
