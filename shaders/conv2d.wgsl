@@ -27,7 +27,7 @@ struct ConvParams {
     out_base: u32,
     // bit 0: add bias[co]; bit 1: x * norm[2ci] + norm[2ci + 1] on load.
     flags: u32,
-    // 0 none, 1 relu, 2 leaky relu(slope), 3 sigmoid.
+    // 0 none, 2 leaky relu(slope) (the codes of matmul.wgsl).
     act: u32,
     slope: f32,
     _pad0: u32,
@@ -45,12 +45,10 @@ struct ConvParams {
 const CO_BLOCK: u32 = 4u;
 
 fn activate(v: f32, act: u32, slope: f32) -> f32 {
-    switch act {
-        case 1u: { return max(v, 0.0); }
-        case 2u: { return select(v * slope, v, v >= 0.0); }
-        case 3u: { return 1.0 / (1.0 + exp(-v)); }
-        default: { return v; }
+    if act == 2u {
+        return select(v * slope, v, v >= 0.0);
     }
+    return v;
 }
 
 @compute @workgroup_size(8, 8, 1)

@@ -1,6 +1,6 @@
 // HA-Conv gating with the folded BatchNorm after it and the block's tail, fused:
 //   y = (sigmoid(a) * leaky(b, slope) + c) * affine[2ch] + affine[2ch + 1]
-//   mode 0: y;  mode 1: relu(y);  mode 2: relu(y + res)   (BasicBlock residual)
+//   mode 1: relu(y);  mode 2: relu(y + res)   (BasicBlock residual)
 // a, b are the pre-activation gate/feature convolutions, c the inception concat.
 // All tensors are [channels, hw]; a, b, c start at element 0 of their buffers.
 // Dispatch: 256-wide workgroups over channels * hw, split over x and y.
@@ -37,10 +37,8 @@ fn ha_gate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     let feat = select(fb * p.slope, fb, fb >= 0.0);
     var y = fma(gate, feat, f32(c[i]));
     y = fma(y, f32(affine[2u * ch]), f32(affine[2u * ch + 1u]));
-    if p.mode == 1u {
-        y = max(y, 0.0);
-    } else if p.mode == 2u {
-        y = max(y + f32(res[p.res_base + i]), 0.0);
+    if p.mode == 2u {
+        y += f32(res[p.res_base + i]);
     }
-    dst[p.out_base + i] = st(y);
+    dst[p.out_base + i] = st(max(y, 0.0));
 }

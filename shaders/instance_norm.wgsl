@@ -3,26 +3,20 @@
 // `instance_norm_stats`: one workgroup per channel reduces over H*W in two passes (mean, then
 // the centred sum of squares, which avoids the cancellation of E[x^2] - E[x]^2) and writes
 // norm[2c] = 1 / sqrt(var + eps), norm[2c + 1] = -mean / sqrt(var + eps), so that the
-// normalised value is x * norm[2c] + norm[2c + 1]. Dispatch: (channels, 1, 1).
-// `instance_norm_apply`: elementwise application of those statistics.
-// Dispatch: (ceil(n / 256) split over x and y, see `linear_index`).
+// normalised value is x * norm[2c] + norm[2c + 1] (applied by conv2d as it reads its input).
+// Dispatch: (channels, 1, 1).
 alias st = f32;
 
 struct NormParams {
     channels: u32,
     hw: u32,
     in_base: u32,
-    out_base: u32,
     eps: f32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: NormParams;
 @group(0) @binding(1) var<storage, read> src: array<st>;
 @group(0) @binding(2) var<storage, read_write> norm: array<f32>;
-@group(0) @binding(3) var<storage, read_write> dst: array<st>;
 
 const WG: u32 = 256u;
 var<workgroup> partial: array<f32, WG>;
@@ -61,14 +55,4 @@ fn instance_norm_stats(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_inv
         norm[2u * c] = r;
         norm[2u * c + 1u] = -mean * r;
     }
-}
-
-@compute @workgroup_size(256, 1, 1)
-fn instance_norm_apply(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = gid.x + gid.y * nwg.x * WG;
-    if i >= p.channels * p.hw {
-        return;
-    }
-    let c = i / p.hw;
-    dst[p.out_base + i] = st(f32(src[p.in_base + i]) * norm[2u * c] + norm[2u * c + 1u]);
 }

@@ -71,18 +71,6 @@ pub fn ndf_ggx<T: Float>(noh: T, alpha: T) -> T {
     a2 / (T::PI * t * t)
 }
 
-/// Smith–Schlick masking for one direction, `G1 = NoX / (NoX(1−k) + k)` with `k = α/2`.
-/// Returns 0 for `nox ≤ 0`.
-#[inline]
-pub fn g1_schlick<T: Float>(nox: T, alpha: T) -> T {
-    if nox > T::ZERO {
-        let k = alpha * T::from_f64(0.5);
-        nox / (nox * (T::ONE - k) + k)
-    } else {
-        T::ZERO
-    }
-}
-
 /// Spherical-Gaussian Fresnel `F = F0 + (1 − F0)·2^((−5.55473·VoH − 6.98316)·VoH)`.
 /// Note F(VoH = 1) = F0 + (1 − F0)·2^−12.54, not F0 exactly (DESIGN §3).
 #[inline]
@@ -96,8 +84,9 @@ pub fn fresnel_sg<T: Float>(f0: T, voh: T) -> T {
 /// in the surface frame. Unit light, no falloff.
 ///
 /// Exactly 0 when `n·ωi ≤ 0` or `n·ωo ≤ 0` (or either is NaN). The specular term is evaluated
-/// as `D·F·NoL·π / (4·(NoL(1−k)+k)·(NoV(1−k)+k))`, the same value with `G1(x)/x` cancelled,
-/// so there is no division by a vanishing NoL·NoV at grazing angles.
+/// as `D·F·NoL·π / (4·(NoL(1−k)+k)·(NoV(1−k)+k))`, the same value with the Smith–Schlick
+/// `G1(x) = x / (x(1−k) + k)`, `k = α/2`, and its `x` cancelled, so there is no division by a
+/// vanishing NoL·NoV at grazing angles.
 ///
 /// `wi`, `wo` and `p.normal` must be unit vectors (not re-normalised here). Finite inputs give
 /// finite outputs: the largest possible value is about `1/(8 α³) ≈ 1.25e11` per unit F0.

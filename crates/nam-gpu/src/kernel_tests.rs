@@ -102,7 +102,6 @@ fn zeros(ctx: &GpuContext, n: usize, p: Precision) -> DeviceBuffer {
 fn act_ref(v: f64, act: Act) -> f64 {
     match act {
         Act::None => v,
-        Act::Relu => v.max(0.0),
         Act::Leaky(s) => {
             if v >= 0.0 {
                 v
@@ -110,7 +109,6 @@ fn act_ref(v: f64, act: Act) -> f64 {
                 v * f64::from(s)
             }
         }
-        Act::Sigmoid => 1.0 / (1.0 + (-v).exp()),
     }
 }
 
@@ -187,8 +185,8 @@ fn conv2d_matches_cpu_reference_on_odd_sizes() {
                 Act::None,
             ),
             (3, 9, 11, 6, 3, 2, 1, true, true, Act::Leaky(0.1)),
-            (4, 13, 10, 7, 7, 1, 3, false, false, Act::Relu),
-            (5, 7, 9, 3, 1, 2, 0, true, false, Act::Sigmoid),
+            (4, 13, 10, 7, 7, 1, 3, false, false, Act::Leaky(0.01)),
+            (5, 7, 9, 3, 1, 2, 0, true, false, Act::None),
             (2, 5, 3, 9, 7, 2, 3, true, true, Act::None),
         ];
         for (i, &(cin, h, w, cout, k, stride, pad, use_bias, use_norm, act)) in
@@ -342,9 +340,9 @@ fn conv_transpose_matches_cpu_reference_on_odd_sizes() {
 }
 
 #[test]
-fn instance_norm_matches_cpu_reference_on_odd_sizes() {
+fn instance_norm_statistics_match_cpu_reference_on_odd_sizes() {
     let Some(ctx) = ctx() else { return };
-    for (p, tol) in precisions(ctx) {
+    for (p, _) in precisions(ctx) {
         for &(c, h, w) in &[(3usize, 5usize, 7usize), (2, 37, 29)] {
             let hw = h * w;
             // Offset mean and scale so the two-pass variance matters.
@@ -358,41 +356,22 @@ fn instance_norm_matches_cpu_reference_on_odd_sizes() {
             );
             let xb = up(ctx, &x, p);
             let norm = zeros(ctx, 2 * c, Precision::F32);
-            let out = zeros(ctx, c * hw, p);
             let eps = 1e-5;
-            let d = vec![
-                ops::instance_norm_stats(
-                    ctx,
-                    p,
-                    View {
-                        buf: &xb.buffer,
-                        base: 0,
-                    },
-                    c as u32,
-                    hw as u32,
-                    eps,
-                    &norm.buffer,
-                )
-                .unwrap_or_else(|e| panic!("{e}")),
-                ops::instance_norm_apply(
-                    ctx,
-                    p,
-                    View {
-                        buf: &xb.buffer,
-                        base: 0,
-                    },
-                    c as u32,
-                    hw as u32,
-                    &norm.buffer,
-                    View {
-                        buf: &out.buffer,
-                        base: 0,
-                    },
-                )
-                .unwrap_or_else(|e| panic!("{e}")),
-            ];
-            let got = run(ctx, d, &out, c * hw);
-            let mut want = Vec::with_capacity(c * hw);
+            let d = ops::instance_norm_stats(
+                ctx,
+                p,
+                View {
+                    buf: &xb.buffer,
+                    base: 0,
+                },
+                c as u32,
+                hw as u32,
+                eps,
+                &norm.buffer,
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
+            let got = run(ctx, vec![d], &norm, 2 * c);
+            let mut want = Vec::with_capacity(2 * c);
             for ch in x.chunks_exact(hw) {
                 let mean = ch.iter().map(|&v| f64::from(v)).sum::<f64>() / hw as f64;
                 let var = ch
@@ -400,17 +379,16 @@ fn instance_norm_matches_cpu_reference_on_odd_sizes() {
                     .map(|&v| (f64::from(v) - mean).powi(2))
                     .sum::<f64>()
                     / hw as f64;
-                want.extend(
-                    ch.iter()
-                        .map(|&v| ((f64::from(v) - mean) / (var + f64::from(eps)).sqrt()) as f32),
-                );
+                let r = 1.0 / (var + f64::from(eps)).sqrt();
+                want.extend([r as f32, (-mean * r) as f32]);
             }
-            // Normalised values are O(1); the tolerance applies to them directly.
+            // The statistics are computed in f32 whatever the storage precision; the scale is
+            // O(1) and the shift O(mean · scale), so the tolerance applies to them directly.
             assert_close(
                 &got,
                 &want,
-                tol * 4.0,
-                &format!("instance norm {c}x{h}x{w} {p:?}"),
+                F32_TOL * 4.0,
+                &format!("instance norm statistics {c}x{h}x{w} {p:?}"),
             );
         }
     }
@@ -433,10 +411,9 @@ fn ha_gate_matches_cpu_reference_for_every_tail() {
         });
         let ab = q(&rand_vec(2 * c, 95), p);
         let bufs = [&a, &b, &cc, &res, &ab].map(|v| up(ctx, v, p));
-        for mode in 0..3 {
+        for mode in 1..3 {
             let out = zeros(ctx, n + 2, p);
             let tail = match mode {
-                0 => GateTail::Affine,
                 1 => GateTail::Relu,
                 _ => GateTail::Residual(View {
                     buf: &bufs[3].buffer,
@@ -470,7 +447,6 @@ fn ha_gate_matches_cpu_reference_for_every_tail() {
                     let y = (g * f + f64::from(cc[i])) * f64::from(ab[2 * ch])
                         + f64::from(ab[2 * ch + 1]);
                     (match mode {
-                        0 => y,
                         1 => y.max(0.0),
                         _ => (y + f64::from(res[i])).max(0.0),
                     }) as f32
@@ -495,23 +471,9 @@ fn elementwise_kernels_match_cpu_reference() {
             p,
         );
         let y = q(&rand_vec(n, 101), p);
-        let ab = q(&rand_vec(2 * c, 102), p);
-        let (xb, yb, abb) = (up(ctx, &x, p), up(ctx, &y, p), up(ctx, &ab, p));
+        let (xb, yb) = (up(ctx, &x, p), up(ctx, &y, p));
         let xs = &x[1..];
         let cases: Vec<(&str, Elementwise<'_>, Vec<f64>)> = vec![
-            (
-                "affine",
-                Elementwise::Affine {
-                    ab: &abb.buffer,
-                    hw: hw as u32,
-                },
-                (0..n)
-                    .map(|i| {
-                        f64::from(xs[i]) * f64::from(ab[2 * (i / hw)])
-                            + f64::from(ab[2 * (i / hw) + 1])
-                    })
-                    .collect(),
-            ),
             (
                 "add_relu",
                 Elementwise::AddRelu(View {
@@ -523,28 +485,9 @@ fn elementwise_kernels_match_cpu_reference() {
                     .collect(),
             ),
             (
-                "leaky",
-                Elementwise::Leaky(0.01),
-                xs.iter()
-                    .map(|&v| act_ref(f64::from(v), Act::Leaky(0.01)))
-                    .collect(),
-            ),
-            (
-                "sigmoid",
-                Elementwise::Sigmoid,
-                xs.iter()
-                    .map(|&v| act_ref(f64::from(v), Act::Sigmoid))
-                    .collect(),
-            ),
-            (
                 "atan",
                 Elementwise::Atan,
                 xs.iter().map(|&v| f64::from(v).atan()).collect(),
-            ),
-            (
-                "copy",
-                Elementwise::Copy,
-                xs.iter().map(|&v| f64::from(v)).collect(),
             ),
         ];
         for (name, op, want) in cases {

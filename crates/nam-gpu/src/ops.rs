@@ -26,28 +26,18 @@ impl<'a> View<'a> {
 }
 
 /// Activation fused into a kernel's epilogue (codes match the shaders).
-#[cfg_attr(
-    not(test),
-    allow(
-        dead_code,
-        reason = "standalone kernel variant, exercised by the kernel tests"
-    )
-)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum Act {
     None,
-    Relu,
+    /// LeakyReLU with this negative slope.
     Leaky(f32),
-    Sigmoid,
 }
 
 impl Act {
     fn code(self) -> (u32, f32) {
         match self {
             Act::None => (0, 0.0),
-            Act::Relu => (1, 0.0),
             Act::Leaky(s) => (2, s),
-            Act::Sigmoid => (3, 0.0),
         }
     }
 }
@@ -217,67 +207,25 @@ pub(crate) fn instance_norm_stats(
     eps: f32,
     norm: &wgpu::Buffer,
 ) -> Result<Dispatch> {
-    let words = [channels, hw, src.base, 0, f(eps), 0, 0, 0];
+    let words = [channels, hw, src.base, f(eps)];
     let key = PipelineKey {
         family: Family::InstanceNorm,
         entry: "instance_norm_stats",
         precision,
         constants: vec![],
     };
-    // `dst` is unused by this entry point; the dummy fills its slot.
     launch(
         ctx,
         key,
         &words,
-        &[Res::Buf(src.buf), Res::Buf(norm), Res::Buf(ctx.dummy())],
+        &[Res::Buf(src.buf), Res::Buf(norm)],
         [groups_1d(channels, 1)?, 1, 1],
     )
 }
 
-#[cfg_attr(
-    not(test),
-    allow(
-        dead_code,
-        reason = "standalone kernel variant, exercised by the kernel tests"
-    )
-)]
-/// `dst = src * norm[2c] + norm[2c + 1]` with statistics from [`instance_norm_stats`].
-pub(crate) fn instance_norm_apply(
-    ctx: &GpuContext,
-    precision: Precision,
-    src: View<'_>,
-    channels: u32,
-    hw: u32,
-    norm: &wgpu::Buffer,
-    dst: View<'_>,
-) -> Result<Dispatch> {
-    let words = [channels, hw, src.base, dst.base, 0, 0, 0, 0];
-    launch(
-        ctx,
-        PipelineKey {
-            family: Family::InstanceNorm,
-            entry: "instance_norm_apply",
-            precision,
-            constants: vec![],
-        },
-        &words,
-        &[Res::Buf(src.buf), Res::Buf(norm), Res::Buf(dst.buf)],
-        linear_groups(u64::from(channels) * u64::from(hw), 256)?,
-    )
-}
-
 /// Block tail after an HA-Conv: see `shaders/ha_gate.wgsl`.
-#[cfg_attr(
-    not(test),
-    allow(
-        dead_code,
-        reason = "standalone kernel variant, exercised by the kernel tests"
-    )
-)]
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum GateTail<'a> {
-    /// `y`
-    Affine,
     /// `relu(y)`
     Relu,
     /// `relu(y + res)`
@@ -300,7 +248,6 @@ pub(crate) fn ha_gate(
     slope: f32,
 ) -> Result<Dispatch> {
     let (mode, res) = match tail {
-        GateTail::Affine => (0, None),
         GateTail::Relu => (1, None),
         GateTail::Residual(v) => (2, Some(v)),
     };
@@ -336,27 +283,12 @@ pub(crate) fn ha_gate(
 }
 
 /// Elementwise entry points of `shaders/elementwise.wgsl`.
-#[cfg_attr(
-    not(test),
-    allow(
-        dead_code,
-        reason = "standalone kernel variant, exercised by the kernel tests"
-    )
-)]
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum Elementwise<'a> {
-    /// Per-channel `x * ab[2c] + ab[2c + 1]` with `hw` elements per channel.
-    Affine { ab: &'a wgpu::Buffer, hw: u32 },
     /// `relu(x + other)`.
     AddRelu(View<'a>),
-    /// LeakyReLU with the given negative slope.
-    Leaky(f32),
-    /// Logistic sigmoid.
-    Sigmoid,
     /// Arc tangent.
     Atan,
-    /// Plain copy.
-    Copy,
 }
 
 /// Applies `op` to `n` elements of `src`, writing `dst`.
@@ -368,24 +300,11 @@ pub(crate) fn elementwise(
     dst: View<'_>,
     n: u32,
 ) -> Result<Dispatch> {
-    let (entry, hw, src2, ab, slope) = match op {
-        Elementwise::Affine { ab, hw } => ("affine", hw, None, Some(ab), 0.0),
-        Elementwise::AddRelu(v) => ("add_relu", 1, Some(v), None, 0.0),
-        Elementwise::Leaky(s) => ("leaky_relu", 1, None, None, s),
-        Elementwise::Sigmoid => ("sigmoid_act", 1, None, None, 0.0),
-        Elementwise::Atan => ("atan_act", 1, None, None, 0.0),
-        Elementwise::Copy => ("copy", 1, None, None, 0.0),
+    let (entry, src2) = match op {
+        Elementwise::AddRelu(v) => ("add_relu", Some(v)),
+        Elementwise::Atan => ("atan_act", None),
     };
-    let words = [
-        n,
-        hw.max(1),
-        src.base,
-        src2.map_or(0, |v| v.base),
-        dst.base,
-        f(slope),
-        0,
-        0,
-    ];
+    let words = [n, src.base, src2.map_or(0, |v| v.base), dst.base];
     launch(
         ctx,
         PipelineKey {
@@ -398,7 +317,6 @@ pub(crate) fn elementwise(
         &[
             Res::Buf(src.buf),
             Res::Buf(src2.map_or(ctx.dummy(), |v| v.buf)),
-            Res::Buf(ab.unwrap_or(ctx.dummy())),
             Res::Buf(dst.buf),
         ],
         linear_groups(u64::from(n), 256)?,

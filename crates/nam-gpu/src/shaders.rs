@@ -144,9 +144,9 @@ impl Family {
         match self {
             Family::Conv2d => &[U, R, R, R, R, W],
             Family::ConvTranspose => &[U, R, R, R, W],
-            Family::InstanceNorm => &[U, R, W, W],
+            Family::InstanceNorm => &[U, R, W],
             Family::HaGate => &[U, R, R, R, R, R, W],
-            Family::Elementwise => &[U, R, R, R, W],
+            Family::Elementwise => &[U, R, R, W],
             Family::PosEnc => &[U, R, W, ST],
             Family::Matmul => &[U, R, R, W],
             Family::MatmulTex => &[U, T, T, ST, W],

@@ -2,7 +2,6 @@
 //! `params` `[H, W, C]` F32 and a `config` JSON in `__metadata__`.
 
 use std::collections::BTreeMap;
-use std::path::Path;
 
 use nam_weights::{Tensor, TensorFile, write_safetensors};
 
@@ -35,11 +34,6 @@ impl ParamMap {
     /// recorded `model_sha256`.
     pub fn from_nam_bytes(bytes: &[u8], label: &str) -> Result<(Self, String)> {
         Self::from_tensor_file(TensorFile::from_bytes(bytes, label)?)
-    }
-
-    /// Reads a `.nam` file from disk.
-    pub fn from_nam_file(path: impl AsRef<Path>) -> Result<(Self, String)> {
-        Self::from_tensor_file(TensorFile::from_file(path)?)
     }
 
     fn from_tensor_file(f: TensorFile) -> Result<(Self, String)> {
