@@ -115,7 +115,7 @@ fn bench_gpu_times_both_plans_on_the_adapter_and_the_cpu() {
         String::from_utf8_lossy(&o.stderr),
     );
     if !o.status.success() && stderr.contains("no wgpu adapter") {
-        eprintln!("SKIP: no wgpu adapter\n{stderr}");
+        nam::nam_gpu::skip_without_adapter(&format!("no wgpu adapter\n{stderr}"));
         return;
     }
     assert!(o.status.success(), "{stdout}\n{stderr}");

@@ -138,7 +138,7 @@ fn tiny_report_writes_a_table_with_finite_numbers_and_a_plot() {
             "GPU f32 {gpu:?} vs reference {reference:?}"
         );
     } else {
-        eprintln!("SKIP GPU rows: no adapter\n{md}");
+        nam::nam_gpu::skip_without_adapter(&format!("GPU rows: no adapter\n{md}"));
     }
     let all = table(&md, "## All protocols");
     let row = |label: &str| {

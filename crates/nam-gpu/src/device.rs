@@ -53,3 +53,39 @@ pub fn request_device(want_f16: bool) -> Option<DeviceHandles> {
         }
     }
 }
+
+/// The one decision of every GPU test that finds no adapter (or no usable device): on a
+/// developer's machine it prints `SKIP: {reason}` and returns, so the test can pass; under
+/// `CI=true`, where lavapipe is installed, it panics, because a skip there would hide a break.
+pub fn skip_without_adapter(reason: &str) {
+    skip_or_fail(reason, std::env::var("CI").ok().as_deref());
+}
+
+/// [`skip_without_adapter`] with the value of `CI` passed in.
+fn skip_or_fail(reason: &str, ci: Option<&str>) {
+    if ci == Some("true") {
+        panic!(
+            "CI=true and the GPU test cannot run: {reason} (CI runs GPU tests on lavapipe: \
+             install mesa-vulkan-drivers)"
+        );
+    }
+    eprintln!("SKIP: {reason}");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::skip_or_fail;
+
+    #[test]
+    #[should_panic(expected = "CI=true and the GPU test cannot run: no adapter")]
+    fn a_missing_adapter_fails_the_test_under_ci_true() {
+        skip_or_fail("no adapter", Some("true"));
+    }
+
+    #[test]
+    fn a_missing_adapter_is_a_skip_elsewhere() {
+        skip_or_fail("no adapter", None);
+        skip_or_fail("no adapter", Some("false"));
+        skip_or_fail("no adapter", Some(""));
+    }
+}

@@ -1,5 +1,6 @@
 //! Every kernel against a plain CPU loop, on odd sizes, in f32 and (when the adapter has
-//! SHADER_F16) f16. Tests print a reason and pass only when no adapter exists.
+//! SHADER_F16) f16. Without an adapter tests print a reason and pass, except under `CI=true`
+//! ([`crate::skip_without_adapter`]).
 
 use std::sync::OnceLock;
 
@@ -14,25 +15,23 @@ const F32_TOL: f32 = 2e-5;
 const F16_TOL: f32 = 4e-3;
 
 fn ctx() -> Option<&'static GpuContext> {
-    static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
+    static CTX: OnceLock<Result<GpuContext, String>> = OnceLock::new();
     let c = CTX.get_or_init(|| {
-        let h = crate::request_device(true)?;
+        let h = crate::request_device(true).ok_or("no GPU adapter available")?;
         eprintln!(
             "nam-gpu kernel tests on {:?} ({:?})",
             h.info.name, h.info.backend
         );
-        match GpuContext::new(&h.device, &h.queue, h.info.device_type) {
-            Ok(c) => Some(c),
-            Err(e) => {
-                eprintln!("nam-gpu: context creation failed: {e}");
-                None
-            }
-        }
+        GpuContext::new(&h.device, &h.queue, h.info.device_type)
+            .map_err(|e| format!("context creation failed: {e}"))
     });
-    if c.is_none() {
-        eprintln!("SKIP: no GPU adapter available");
+    match c {
+        Ok(c) => Some(c),
+        Err(reason) => {
+            crate::skip_without_adapter(reason);
+            None
+        }
     }
-    c.as_ref()
 }
 
 fn precisions(ctx: &GpuContext) -> Vec<(Precision, f32)> {

@@ -34,7 +34,7 @@ mod weights;
 mod kernel_tests;
 
 pub use context::{GpuContext, MatmulVariant};
-pub use device::{DeviceHandles, request_device};
+pub use device::{DeviceHandles, request_device, skip_without_adapter};
 pub use error::{GpuError, Result};
 pub use nam_weights::UNET_MULTIPLE;
 pub use network::{GpuNetwork, MAX_RENDER_ROWS};

@@ -1,7 +1,7 @@
 //! The whole network on the GPU against the torch golden fixtures (docs/FORMAT.md,
 //! `tests/fixtures/net_tiny*.safetensors`, written by `python -m train_py.golden`), in f32 and
-//! f16, and a saturated network's radiance against the CPU's cap at f32::MAX. Tests print a
-//! reason and pass only when no GPU adapter exists.
+//! f16, and a saturated network's radiance against the CPU's cap at f32::MAX. Without an
+//! adapter tests print a reason and pass, except under `CI=true` (`skip_without_adapter`).
 
 use std::path::PathBuf;
 use std::sync::{Mutex, OnceLock};
@@ -43,7 +43,7 @@ fn gpu() -> Option<&'static Mutex<DeviceHandles>> {
     static GPU: OnceLock<Option<Mutex<DeviceHandles>>> = OnceLock::new();
     let g = GPU.get_or_init(|| nam_gpu::request_device(true).map(Mutex::new));
     if g.is_none() {
-        eprintln!("SKIP: no GPU adapter available");
+        nam_gpu::skip_without_adapter("no GPU adapter available");
     }
     g.as_ref()
 }

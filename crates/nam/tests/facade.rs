@@ -355,11 +355,11 @@ fn coordinates_beyond_f32_are_errors_and_tiny_directions_still_evaluate() {
 const GPU_TOL: f32 = 2e-2;
 
 /// The tiny model with the default adapter attached (f32); `None`, with a printed reason,
-/// when there is no adapter. The model keeps its own handles to the device.
+/// when there is no adapter (a failure under `CI=true`). The model keeps its own handles to the device.
 #[cfg(feature = "gpu")]
 fn tiny_on_gpu() -> Option<NeuralModel> {
     let Some(gpu) = nam::nam_gpu::request_device(false) else {
-        eprintln!("SKIP: no wgpu adapter");
+        nam::nam_gpu::skip_without_adapter("no wgpu adapter");
         return None;
     };
     let mut model = tiny();
