@@ -24,7 +24,7 @@
 //! Per pixel `ΔE = ΔE_c^(1 − ΔE_f)`; the score is the mean over pixels.
 
 use crate::error::Result;
-use crate::metrics::check_pair;
+use crate::pair::check_pair;
 use std::f64::consts::PI;
 
 /// FLIP's default viewing condition: a 0.7 m wide 3840-pixel monitor seen from 0.7 m

@@ -17,6 +17,7 @@ pub mod flip;
 pub mod heldout;
 pub mod methods;
 pub mod metrics;
+mod pair;
 pub mod plot;
 pub mod report;
 pub mod runner;

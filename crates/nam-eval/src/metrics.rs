@@ -14,6 +14,7 @@
 //! Negative radiance (none of the evaluated methods produces it) is clamped to 0 before the log.
 
 use crate::error::{EvalError, Result};
+use crate::pair::check_pair;
 
 /// SSIM stabiliser for the means (`(K1·L)²`, K1 = 0.01, L = 1).
 pub const SSIM_C1: f64 = 0.01 * 0.01;
@@ -52,22 +53,6 @@ impl Scores {
             .iter()
             .all(|v| v.is_finite())
     }
-}
-
-/// Checks that two images have `3·height·width` values each.
-pub(crate) fn check_pair(pred: &[f32], gt: &[f32], height: usize, width: usize) -> Result<()> {
-    let n = 3 * height * width;
-    if height == 0 || width == 0 {
-        return Err(EvalError::Size("empty image".into()));
-    }
-    if pred.len() != n || gt.len() != n {
-        return Err(EvalError::Size(format!(
-            "expected {n} values for {height}×{width} RGB, got {} and {}",
-            pred.len(),
-            gt.len()
-        )));
-    }
-    Ok(())
 }
 
 #[inline]

@@ -1,13 +1,23 @@
-//! `nam-ggx` — the analytic GGX SVBRDF reference of the nam project (DESIGN.md §3, §7, §8).
+//! `nam-ggx` — two things in one crate: the analytic GGX SVBRDF reference of the nam project
+//! (DESIGN.md §3, §7, §8) and nam's small imaging library. They share the radiance convention
+//! and the surface frame, and both sit below every other crate, so they stay together rather
+//! than split into a reference crate and an imaging crate.
 //!
-//! - [`maps`]: SVBRDF parameter maps and the 4-panel / separate-file formats.
-//! - [`geometry`]: pixel positions, the capture camera, per-pixel ωi/ωo/ωh: the one home of
-//!   the surface frame, which the networks (`nam-model`) use in f32.
+//! **The GGX reference** (ground truth for training, evaluation and `nam-cli render-ggx`):
 //! - [`brdf`]: pointwise GGX, generic over `f32`/`f64` ([`Float`]).
 //! - [`mod@render`]: a whole map for one light and viewer (rayon).
-//! - [`color`]: log compression, sRGB and gamma curves, the display transform.
+//! - [`maps`]: SVBRDF parameter maps and the 4-panel / separate-file formats.
 //! - [`protocol`]: seeded Reflect / Identity / Hemisphere samplers.
-//! - [`imageio`]: a plain RGB buffer and PNG/EXR encode/decode.
+//!
+//! **The imaging library** (used by the facade's photos, the CLI's outputs and the
+//! evaluation's images; it knows nothing about GGX):
+//! - [`imageio`]: a plain RGB buffer ([`RgbImage`]) and PNG/JPEG/EXR encode/decode.
+//! - [`color`]: log compression, sRGB and gamma curves, the display transform.
+//!
+//! **Shared by both, and by the networks:**
+//! - [`geometry`]: pixel positions, the capture camera, per-pixel ωi/ωo/ωh: the one home of
+//!   the surface frame, which the networks (`nam-model`) use in f32.
+//! - [`vec3`], [`float`]: the small vector type and the `f32`/`f64` abstraction.
 //!
 //! Radiance convention everywhere: `R = π · f_r(ωi, ωo) · max(0, n·ωi)` for a unit light
 //! without inverse-square falloff; frames are the surface frame (material on z = 0 spanning

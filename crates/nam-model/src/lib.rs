@@ -28,9 +28,11 @@
 #![deny(unsafe_code)]
 
 mod bf16;
+mod dense;
 pub mod encoding;
 mod error;
 pub mod input;
+mod maps;
 mod param_file;
 mod prepared;
 pub mod reference;
@@ -40,10 +42,11 @@ mod unet;
 
 pub use bf16::bf16_supported;
 pub use error::{ModelError, Result};
+pub use maps::{ParamMap, Rgb};
 pub use nam_ggx::geometry;
 pub use nam_weights::radiance_from_log;
 pub use prepared::{PreparedMaterial, Roi};
-pub use render::{DEFAULT_TILE, ParamMap, RenderNet, Rgb};
+pub use render::{DEFAULT_TILE, RenderNet};
 pub use unet::{MAX_SIDE, UNet};
 
 use nam_weights::Weights;

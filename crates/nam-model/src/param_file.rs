@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use nam_weights::{Tensor, TensorFile, write_safetensors};
 
 use crate::error::{ModelError, Result};
-use crate::render::ParamMap;
+use crate::maps::ParamMap;
 
 impl ParamMap {
     /// Serialises as a `.nam` file; `model_sha256` identifies the weights that made it.

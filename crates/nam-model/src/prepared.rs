@@ -7,7 +7,8 @@ use crate::Source;
 use crate::encoding::direction_triple;
 use crate::error::{ModelError, Result, check_finite, check_len};
 use crate::geometry::{Directions, pixel_position};
-use crate::render::{Base, Dirs, NoDirs, ParamMap, RenderNet, Rgb};
+use crate::maps::{ParamMap, Rgb};
+use crate::render::{Base, Dirs, NoDirs, RenderNet};
 use crate::sgemm::{Mat, sgemm};
 use nam_ggx::Vec3;
 

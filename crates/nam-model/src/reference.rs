@@ -10,7 +10,7 @@ use nam_weights::{Scope, Weights, radiance_from_log};
 
 use crate::encoding::{direction_triple, encode_f64, encode_into};
 use crate::error::{Result, check_finite, check_len};
-use crate::render::ParamMap;
+use crate::maps::ParamMap;
 use crate::unet::{check_image, pad_multiple};
 
 /// Accumulator precision of the reference path. Activations are stored as f32

@@ -1,7 +1,6 @@
 //! [`NeuralMaterial`]: a latent parameter map and its `.nam` file (docs/FORMAT.md).
 
 use crate::error::{NamError, Result};
-use crate::model::NeuralModel;
 use nam_model::ParamMap;
 use std::path::Path;
 
@@ -52,26 +51,6 @@ impl NeuralMaterial {
         &self.model_fingerprint
     }
 
-    /// Errors unless `model` is the model that estimated this material.
-    pub fn check_model(&self, model: &NeuralModel) -> Result<()> {
-        if self.params.channels != model.config().param_channels {
-            return Err(NamError::Params(format!(
-                "the material has {} channels per pixel, the model expects {}",
-                self.params.channels,
-                model.config().param_channels
-            )));
-        }
-        if self.model_fingerprint != model.fingerprint() {
-            return Err(NamError::Params(format!(
-                "the material was estimated by model {}…, not by this model {}… \
-                 (latent parameters only make sense to the model that produced them)",
-                short(&self.model_fingerprint),
-                short(model.fingerprint())
-            )));
-        }
-        Ok(())
-    }
-
     /// Serialises to `.nam` bytes (safetensors, one F32 tensor `params` [H, W, 64]).
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
         Ok(self.params.to_nam_bytes(&self.model_fingerprint)?)
@@ -94,8 +73,4 @@ impl NeuralMaterial {
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
         crate::io::write_atomic(path.as_ref(), &self.to_bytes()?)
     }
-}
-
-fn short(fp: &str) -> &str {
-    &fp[..fp.len().min(12)]
 }

@@ -1,6 +1,6 @@
 //! [`NeuralModel`]: validated weights plus the networks on the CPU and, optionally, a GPU.
 
-use crate::error::Result;
+use crate::error::{NamError, Result};
 use crate::material::NeuralMaterial;
 use crate::photo::Photo;
 use nam_model::Model;
@@ -188,4 +188,33 @@ fn hex_sha256(bytes: &[u8]) -> String {
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect()
+}
+
+// The model check lives here, beside the model it reads, so that `material.rs` (the value
+// type and its file) does not depend on `model.rs`, which estimates materials.
+impl NeuralMaterial {
+    /// Errors unless `model` is the model that estimated this material.
+    pub fn check_model(&self, model: &NeuralModel) -> Result<()> {
+        if self.params().channels != model.config().param_channels {
+            return Err(NamError::Params(format!(
+                "the material has {} channels per pixel, the model expects {}",
+                self.params().channels,
+                model.config().param_channels
+            )));
+        }
+        if self.model_fingerprint() != model.fingerprint() {
+            return Err(NamError::Params(format!(
+                "the material was estimated by model {}…, not by this model {}… \
+                 (latent parameters only make sense to the model that produced them)",
+                short(self.model_fingerprint()),
+                short(model.fingerprint())
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The first 12 hex digits of a fingerprint, enough to tell models apart in a message.
+fn short(fp: &str) -> &str {
+    &fp[..fp.len().min(12)]
 }

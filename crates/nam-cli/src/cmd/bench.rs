@@ -7,7 +7,8 @@ use nam_model::geometry::{CAPTURE_DISTANCE, unit_direction};
 use nam_model::{RenderNet, Roi, Source};
 use std::fmt::Write as _;
 use std::path::PathBuf;
-use std::time::Instant;
+
+use super::timing::{Case, Row, measure};
 
 /// Time the CPU paths (estimate, general relight, directional + orthographic,
 /// prepared material, ROI, query batch) against each other and the sgemm
@@ -37,46 +38,6 @@ const SGEMM_N: usize = 1024;
 const ROI_SIDE: usize = 64;
 /// Queries in the query-batch row.
 const QUERIES: usize = 4096;
-
-/// One measured row of the table.
-pub(super) struct Row {
-    pub name: String,
-    /// Pixels or queries computed (0: not a per-pixel path).
-    pub items: usize,
-    pub ms: f64,
-    /// Floating-point operations of one run (0: not counted).
-    pub flops: f64,
-}
-
-/// A path to time: its row label, items per run, flops per run and the work.
-pub(super) type Case<'a> = (String, usize, f64, Box<dyn FnMut() -> Result<()> + 'a>);
-
-/// Times every case round-robin: one warm-up round, then `repeat` rounds of
-/// one run per case; the best run of each is kept. Interleaving makes the
-/// ratios fair on a shared machine, where load changes between seconds.
-pub(super) fn measure(cases: Vec<Case<'_>>, repeat: usize) -> Result<Vec<Row>> {
-    let mut best = vec![f64::INFINITY; cases.len()];
-    let mut cases = cases;
-    for round in 0..=repeat {
-        for (b, (_, _, _, f)) in best.iter_mut().zip(cases.iter_mut()) {
-            let t = Instant::now();
-            f()?;
-            if round > 0 {
-                *b = b.min(t.elapsed().as_secs_f64() * 1e3);
-            }
-        }
-    }
-    Ok(cases
-        .into_iter()
-        .zip(best)
-        .map(|((name, items, flops, _), ms)| Row {
-            name,
-            items,
-            ms,
-            flops,
-        })
-        .collect())
-}
 
 /// Runs the subcommand.
 pub fn run(args: &Args) -> Result<()> {

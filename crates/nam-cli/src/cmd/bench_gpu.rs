@@ -2,7 +2,7 @@
 //! plan (positional encoding, ND_enc and render MLP per pixel) against the directional plan
 //! (ND_enc once, render MLP per pixel), each also timed on the CPU in the same rounds.
 
-use super::bench::{Case, Row, measure};
+use super::timing::{Case, Row, measure};
 use anyhow::{Context, Result, bail};
 use nam::geometry::{CAPTURE_DISTANCE, Light, View, capture_position};
 use nam::{NeuralMaterial, NeuralModel, Scene, Vec3d, relight};

@@ -8,3 +8,4 @@ pub mod info;
 pub mod relight;
 pub mod render_ggx;
 pub mod report;
+mod timing;

@@ -12,159 +12,27 @@
 //! * the direction part is the per-query ND_enc output (a GEMM with k = 32,
 //!   accumulated), caller-given features, or one constant vector when ωi, ωo
 //!   are the same at every pixel (directional light, orthographic view).
+//!
+//! This file holds [`RenderNet`] (construction, sizes, multiply-add counts) and its public
+//! entry points; `tile.rs` the tile kernel they all run.
 
 use nam_weights::{DirectionWork, ModelConfig, RenderWork, Weights, radiance_from_log};
-use rayon::prelude::*;
 
 use crate::Source;
 use crate::bf16::{Bf16Dense, bf16_supported};
+use crate::dense::Dense;
 use crate::encoding::{direction_triple, encode_into, encoded_len};
 use crate::error::{ModelError, Result, check_finite, check_len};
 use crate::geometry::{Directions, pixel_position};
-use crate::sgemm::{Mat, sgemm};
+use crate::maps::{ParamMap, Rgb};
+
+mod tile;
+
+pub(crate) use tile::{Base, Dirs, NoDirs};
 
 /// Pixels per fused tile. 256 keeps a tile's activations (256×594 f32 ≈ 600 KB
 /// for the two widest) near the per-core L2 while giving GEMMs enough rows.
 pub const DEFAULT_TILE: usize = 256;
-
-/// A latent parameter map: `data[(row·width + col)·channels + k]` (HWC).
-#[derive(Debug, Clone, PartialEq)]
-pub struct ParamMap {
-    /// Rows.
-    pub height: usize,
-    /// Columns.
-    pub width: usize,
-    /// Channels per pixel (the config's `param_channels`, 64).
-    pub channels: usize,
-    /// `height · width · channels` values, pixel-major.
-    pub data: Vec<f32>,
-}
-
-/// An RGB image, HWC, linear radiance `R = π f_r cos θi` (DESIGN §3).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Rgb {
-    /// Rows.
-    pub height: usize,
-    /// Columns.
-    pub width: usize,
-    /// `height · width · 3` values.
-    pub data: Vec<f32>,
-}
-
-/// One dense layer `y = x · Wᵀ` stored transposed (`wt[i·out + o] = W[o, i]`),
-/// followed by an optional LeakyReLU.
-#[derive(Debug, Clone)]
-pub(crate) struct Dense {
-    pub inp: usize,
-    pub out: usize,
-    pub wt: Vec<f32>,
-    pub slope: Option<f32>,
-}
-
-impl Dense {
-    fn from_w(w: &[f32], out: usize, inp: usize, slope: Option<f32>) -> Self {
-        let mut wt = vec![0.0f32; inp * out];
-        for o in 0..out {
-            for i in 0..inp {
-                wt[i * out + o] = w[o * inp + i];
-            }
-        }
-        Self {
-            inp,
-            out,
-            wt,
-            slope,
-        }
-    }
-
-    /// `Wᵀ` from input row `k0` on, as a GEMM operand: the part of the layer
-    /// that sees inputs `k0..`.
-    pub(crate) fn rows_from(&self, k0: usize) -> Mat<'_> {
-        Mat {
-            data: &self.wt[k0 * self.out..],
-            ld: self.out,
-        }
-    }
-
-    /// The activation, in place, on `n` rows of `y` (leading dimension `ldy`).
-    pub(crate) fn activate(&self, n: usize, y: &mut [f32], ldy: usize) {
-        if let Some(s) = self.slope {
-            for r in 0..n {
-                for v in &mut y[r * ldy..r * ldy + self.out] {
-                    *v = if *v >= 0.0 { *v } else { *v * s };
-                }
-            }
-        }
-    }
-}
-
-/// A layer the tile chain can run: f32 ([`Dense`]) or bf16 ([`Bf16Dense`]).
-trait Layer {
-    fn width(&self) -> usize;
-    /// `y[n×out] (ld ldy) = act(x[n×inp] (ld ldx) · Wᵀ)`, single-threaded.
-    fn run(&self, n: usize, x: &[f32], ldx: usize, y: &mut [f32], ldy: usize, pairs: &mut Vec<u32>);
-}
-
-impl Layer for Dense {
-    fn width(&self) -> usize {
-        self.out
-    }
-
-    fn run(&self, n: usize, x: &[f32], ldx: usize, y: &mut [f32], ldy: usize, _: &mut Vec<u32>) {
-        sgemm(
-            n,
-            self.out,
-            self.inp,
-            Mat { data: x, ld: ldx },
-            self.rows_from(0),
-            y,
-            ldy,
-            false,
-            1,
-        );
-        self.activate(n, y, ldy);
-    }
-}
-
-impl Layer for Bf16Dense {
-    fn width(&self) -> usize {
-        self.out()
-    }
-
-    fn run(
-        &self,
-        n: usize,
-        x: &[f32],
-        ldx: usize,
-        y: &mut [f32],
-        ldy: usize,
-        pairs: &mut Vec<u32>,
-    ) {
-        self.forward(n, x, ldx, y, ldy, pairs);
-    }
-}
-
-/// Where a tile's material part `W_p·p` of the first render layer comes from.
-#[derive(Clone, Copy)]
-pub(crate) enum Base<'a> {
-    /// Param rows (`texels × param_channels`): one GEMM per tile.
-    Params(&'a [f32]),
-    /// Precomputed `W_p·p` rows (`texels × hidden`): copied.
-    Prepared(&'a [f32]),
-}
-
-/// Where the direction features of output `g` come from.
-pub(crate) enum Dirs<'a, F> {
-    /// The direction triple `[ωi, ωo, ωh]` of output `g`: encoding and ND_enc per query.
-    Each(F),
-    /// ND_enc output rows given by the caller (`outputs × nd_len`).
-    Features(&'a [f32]),
-    /// One precomputed `W_d·ND_enc(…)` vector (`hidden`) for every output.
-    Constant(&'a [f32]),
-}
-
-/// The `F` of a [`Dirs`] that is not [`Dirs::Each`].
-pub(crate) type NoDirs = fn(usize) -> [f32; 9];
 
 /// `M_render` ready to run: ND_enc layers and the render MLP with `render.l0`
 /// and `render.l1` folded into one matrix (no activation between them).
@@ -195,21 +63,6 @@ pub struct RenderNet {
     config: ModelConfig,
     /// `render.l0·l1` folded into `render[0]`.
     folded: bool,
-}
-
-/// Per-thread scratch of one tile.
-pub(crate) struct Scratch {
-    enc: Vec<f32>,
-    a: Vec<f32>,
-    b: Vec<f32>,
-    /// Gathered param rows (`n × params`).
-    x: Vec<f32>,
-    /// First render layer output (`n × hidden`).
-    h: Vec<f32>,
-    /// ND_enc output (`n × nd_len`).
-    nd: Vec<f32>,
-    log: Vec<f32>,
-    pairs: Vec<u32>,
 }
 
 impl RenderNet {
@@ -374,71 +227,6 @@ impl RenderNet {
         usize::try_from(macs).unwrap_or(usize::MAX)
     }
 
-    fn max_hidden(&self) -> usize {
-        self.nd
-            .iter()
-            .chain(&self.render)
-            .map(|l| l.out)
-            .max()
-            .unwrap_or(1)
-    }
-
-    pub(crate) fn scratch(&self, n: usize) -> Scratch {
-        Scratch {
-            enc: vec![0.0; n * self.encoded_len()],
-            a: vec![0.0; n * self.max_hidden()],
-            b: vec![0.0; n * self.max_hidden()],
-            x: vec![0.0; n * self.params],
-            h: vec![0.0; n * self.hidden_len()],
-            nd: vec![0.0; n * self.nd_len()],
-            log: vec![0.0; n * 3],
-            pairs: Vec::new(),
-        }
-    }
-
-    /// Runs `layers` on `n` rows of `input`, ping-ponging through `a` and `b`;
-    /// the last layer writes `last` (leading dimension `ldlast`). With no
-    /// layers the input is copied.
-    #[allow(clippy::too_many_arguments)]
-    fn chain<L: Layer>(
-        layers: &[L],
-        n: usize,
-        input: &[f32],
-        ldin: usize,
-        a: &mut [f32],
-        b: &mut [f32],
-        last: &mut [f32],
-        ldlast: usize,
-        pairs: &mut Vec<u32>,
-    ) {
-        let Some((tail, body)) = layers.split_last() else {
-            for r in 0..n {
-                last[r * ldlast..r * ldlast + ldin]
-                    .copy_from_slice(&input[r * ldin..(r + 1) * ldin]);
-            }
-            return;
-        };
-        // Where the current activations are: `input`, `a` or `b`.
-        let mut in_a: Option<bool> = None;
-        let mut ld = ldin;
-        for l in body {
-            let (src, dst): (&[f32], &mut [f32]) = match in_a {
-                None => (input, &mut *a),
-                Some(true) => (&*a, &mut *b),
-                Some(false) => (&*b, &mut *a),
-            };
-            l.run(n, src, ld, dst, l.width(), pairs);
-            ld = l.width();
-            in_a = Some(in_a != Some(true));
-        }
-        let src: &[f32] = match in_a {
-            None => input,
-            Some(true) => a,
-            Some(false) => b,
-        };
-        tail.run(n, src, ld, last, ldlast, pairs);
-    }
-
     /// Positional encoding of `n` queries into `out` (`n × encoded_len`), ωh computed.
     pub fn encode(&self, wi: &[[f32; 3]], wo: &[[f32; 3]], out: &mut [f32]) -> Result<()> {
         check_len("wo", wi.len(), wo.len())?;
@@ -461,201 +249,6 @@ impl RenderNet {
             encode_into(&triple(d), self.octaves, o);
         }
         Ok(())
-    }
-
-    /// Runs `f(scratch, first index, output chunk)` over tiles of `out`
-    /// (`width` values per item) in parallel, one scratch per worker.
-    pub(crate) fn tiles(
-        &self,
-        out: &mut [f32],
-        width: usize,
-        f: impl Fn(&mut Scratch, usize, &mut [f32]) + Sync + Send,
-    ) {
-        let n = out.len() / width;
-        let t = self.tile.min(n.max(1));
-        out.par_chunks_mut(t * width)
-            .enumerate()
-            .for_each_init(|| self.scratch(t), |s, (ti, dst)| f(s, ti * t, dst));
-    }
-
-    /// ND_enc of `n` encoded queries (`n × 297` → `n × 32`), f32.
-    pub fn nd_enc(&self, encoded: &[f32], out: &mut [f32]) -> Result<()> {
-        let e = self.encoded_len();
-        let d = self.nd_len();
-        let n = encoded.len() / e;
-        check_len("encoded", n * e, encoded.len())?;
-        check_len("nd out", n * d, out.len())?;
-        self.tiles(out, d, |s, q0, dst| {
-            let m = dst.len() / d;
-            let src = &encoded[q0 * e..(q0 + m) * e];
-            Self::chain(
-                &self.nd,
-                m,
-                src,
-                e,
-                &mut s.a,
-                &mut s.b,
-                dst,
-                d,
-                &mut s.pairs,
-            );
-        });
-        Ok(())
-    }
-
-    /// ND_enc features of `n` direction triples into `s.nd` (bf16 when active).
-    fn features_into(&self, s: &mut Scratch, n: usize, dir: impl Fn(usize) -> [f32; 9]) {
-        let e = self.encoded_len();
-        let d = self.nd_len();
-        for q in 0..n {
-            encode_into(&dir(q), self.octaves, &mut s.enc[q * e..(q + 1) * e]);
-        }
-        let Scratch {
-            enc,
-            a,
-            b,
-            nd,
-            pairs,
-            ..
-        } = s;
-        match &self.bf16 {
-            Some((nd16, _)) => Self::chain(nd16, n, enc, e, a, b, nd, d, pairs),
-            None => Self::chain(&self.nd, n, enc, e, a, b, nd, d, pairs),
-        }
-    }
-
-    /// The direction part `W_d · ND_enc(enc(ωi, ωo, ωh))` of the first render
-    /// layer for one direction pair (`hidden_len` values): what every pixel
-    /// shares under a directional light and an orthographic view.
-    pub(crate) fn constant_direction_part(&self, wi: [f32; 3], wo: [f32; 3]) -> Vec<f32> {
-        let mut s = self.scratch(1);
-        self.features_into(&mut s, 1, |_| direction_triple(wi, wo));
-        let h1 = self.hidden_len();
-        let mut c = vec![0.0f32; h1];
-        sgemm(
-            1,
-            h1,
-            self.nd_len(),
-            Mat {
-                data: &s.nd,
-                ld: self.nd_len(),
-            },
-            self.render[0].rows_from(self.params),
-            &mut c,
-            h1,
-            false,
-            1,
-        );
-        c
-    }
-
-    /// The fused pipeline on outputs `q0..q0 + n`: `texel(g)` is the material
-    /// row of output `g`; log-space results land in `s.log[..n·3]`.
-    pub(crate) fn run_tile<F: Fn(usize) -> [f32; 9]>(
-        &self,
-        s: &mut Scratch,
-        (q0, n): (usize, usize),
-        texel: &dyn Fn(usize) -> usize,
-        base: Base<'_>,
-        dirs: &Dirs<'_, F>,
-    ) {
-        let first = &self.render[0];
-        let (p, d, h1) = (self.params, self.nd_len(), first.out);
-        // Direction features first: ND_enc uses the a/b scratch.
-        let feats: Option<&[f32]> = match dirs {
-            Dirs::Each(dir) => {
-                self.features_into(s, n, |q| dir(q0 + q));
-                None
-            }
-            Dirs::Features(f) => Some(&f[q0 * d..(q0 + n) * d]),
-            Dirs::Constant(_) => None,
-        };
-        let Scratch {
-            a,
-            b,
-            x,
-            h,
-            nd,
-            log,
-            pairs,
-            ..
-        } = s;
-        let h = &mut h[..n * h1];
-        // Material part W_p · p.
-        match base {
-            Base::Params(map) => {
-                for q in 0..n {
-                    let t = texel(q0 + q);
-                    x[q * p..(q + 1) * p].copy_from_slice(&map[t * p..(t + 1) * p]);
-                }
-                sgemm(
-                    n,
-                    h1,
-                    p,
-                    Mat { data: x, ld: p },
-                    first.rows_from(0),
-                    h,
-                    h1,
-                    false,
-                    1,
-                );
-            }
-            Base::Prepared(rows) => {
-                for q in 0..n {
-                    let t = texel(q0 + q);
-                    h[q * h1..(q + 1) * h1].copy_from_slice(&rows[t * h1..(t + 1) * h1]);
-                }
-            }
-        }
-        // Direction part W_d · f.
-        match dirs {
-            Dirs::Constant(c) => {
-                for row in h.chunks_exact_mut(h1) {
-                    for (v, c) in row.iter_mut().zip(c.iter()) {
-                        *v += c;
-                    }
-                }
-            }
-            Dirs::Each(_) | Dirs::Features(_) => {
-                let f = feats.unwrap_or(&nd[..n * d]);
-                sgemm(
-                    n,
-                    h1,
-                    d,
-                    Mat { data: f, ld: d },
-                    first.rows_from(p),
-                    h,
-                    h1,
-                    true,
-                    1,
-                );
-            }
-        }
-        first.activate(n, h, h1);
-        match &self.bf16 {
-            Some((_, tail16)) => Self::chain(tail16, n, h, h1, a, b, log, 3, pairs),
-            None => Self::chain(&self.render[1..], n, h, h1, a, b, log, 3, pairs),
-        }
-    }
-
-    /// Runs the fused pipeline for every output of `out` (`n × 3`, log space
-    /// or, with `radiance`, `max(expm1(y), 0)`), in parallel tiles.
-    pub(crate) fn run<F: Fn(usize) -> [f32; 9] + Sync>(
-        &self,
-        out: &mut [f32],
-        radiance: bool,
-        texel: &(dyn Fn(usize) -> usize + Sync),
-        base: Base<'_>,
-        dirs: &Dirs<'_, F>,
-    ) {
-        self.tiles(out, 3, |s, q0, dst| {
-            let m = dst.len() / 3;
-            self.run_tile(s, (q0, m), texel, base, dirs);
-            dst.copy_from_slice(&s.log[..m * 3]);
-            if radiance {
-                dst.iter_mut().for_each(|v| *v = radiance_from_log(*v));
-            }
-        });
     }
 
     /// Render MLP on precomputed features: `params` (`n × 64`) and `nd` (`n × 32`)

@@ -1,0 +1,406 @@
+//! The blocks of the fast `M_est`, built on the primitives of `conv.rs`: the packed HA-Conv,
+//! the BasicBlock (two HA-Convs, BatchNorm, residual) and the ReverseBlock (transposed convs
+//! split into output-parity sub-convolutions).
+
+use nam_weights::Scope;
+use rayon::prelude::*;
+
+use super::conv::{
+    BAND_PIXELS, EW_PIXELS, Hwc, PackedConv, centred_with_stats, constant_response, ha_mix, sigmoid,
+};
+use crate::error::Result;
+use crate::sgemm::{Mat, sgemm};
+
+/// One HA-Conv, packed: `sigmoid(gate(x))·leaky(feat(IN(x))) + cat(inc1b(inc1a(x)), inc2(x))`.
+///
+/// Every conv that reads `x` is one GEMM on the centred input `x − μ` (μ: the
+/// per-channel mean InstanceNorm computes anyway). InstanceNorm is then only a
+/// per-input-channel scale `1/σ`, folded into the `feat` weights per call, and
+/// each other conv gets back its response to the constant image μ as a bias.
+/// Centring keeps the products small, so a flat channel gives `feat` = 0
+/// exactly, as in the reference.
+#[derive(Debug, Clone)]
+pub(super) struct Ha {
+    pub(super) cout: usize,
+    pub(super) stride: usize,
+    /// Stride-s GEMM on `x − μ`, columns `[inc1a (s = 1 only) | gate | inc2 | feat | down?]`.
+    pub(super) main: PackedConv,
+    /// inc1a at stride 1 on `x` itself, when s ≠ 1.
+    pub(super) inc1a: Option<PackedConv>,
+    pub(super) inc1b: PackedConv,
+    pub(super) has_down: bool,
+}
+
+impl Ha {
+    pub(super) fn new(
+        p: &Scope<'_>,
+        cin: usize,
+        cout: usize,
+        stride: usize,
+        down: Option<&[f32]>,
+    ) -> Result<Self> {
+        let g = p.get("gate.weight", &[cout, cin, 3, 3])?;
+        let f = p.get("feat.weight", &[cout, cin, 3, 3])?;
+        let i1a = p.get("inc1a.weight", &[cout, cin, 3, 3])?;
+        let i1b = p.get("inc1b.weight", &[cout / 2, cout, 3, 3])?;
+        let i2 = p.get("inc2.weight", &[cout / 2, cin, 3, 3])?;
+        let mut parts: Vec<(&[f32], usize, usize)> = Vec::new();
+        if stride == 1 {
+            parts.push((i1a, cout, 3));
+        }
+        parts.push((g, cout, 3));
+        parts.push((i2, cout / 2, 3));
+        parts.push((f, cout, 3));
+        if let Some(d) = down {
+            parts.push((d, cout, 1));
+        }
+        Ok(Self {
+            cout,
+            stride,
+            main: PackedConv::fused(&parts, cin, 3, stride),
+            inc1a: (stride != 1).then(|| PackedConv::fused(&[(i1a, cout, 3)], cin, 3, 1)),
+            inc1b: PackedConv::fused(&[(i1b, cout / 2, 3)], cout, 3, stride),
+            has_down: down.is_some(),
+        })
+    }
+
+    /// Returns (HA output, down-conv output without its bias if fused).
+    /// `post(p, out)` finishes output pixel `p` in place (the block's
+    /// BatchNorm, residual and ReLU), while the pixel is still in cache.
+    pub(super) fn run(
+        &self,
+        x: &Hwc,
+        eps: f32,
+        slope: f32,
+        post: impl Fn(usize, &mut [f32]) + Sync,
+    ) -> (Hwc, Option<Hwc>) {
+        let (co, half) = (self.cout, self.cout / 2);
+        let off = if self.stride == 1 { co } else { 0 };
+        let feat0 = off + co + half;
+        let (xc, mean, inv) = centred_with_stats(x, eps);
+        // Columns other than feat: response to μ (feat sees x − μ only).
+        let mut bias = constant_response(&self.main, &mean);
+        bias[feat0..feat0 + co].fill(0.0);
+        let mut wt = self.main.wt.clone();
+        let cols = self.main.cout;
+        for (r, row) in wt.chunks_exact_mut(cols).enumerate() {
+            let s = inv[r % self.main.cin];
+            row[feat0..feat0 + co].iter_mut().for_each(|w| *w *= s);
+        }
+        let main = self.main.run_with(&xc, &wt);
+        let (c1b, c1b_bias) = match &self.inc1a {
+            Some(c) => (self.inc1b.run(&c.run(x)), vec![0.0; half]),
+            // inc1a without its bias sits in columns 0..co of `main` (read as a
+            // view); inc1b of that constant bias image is again a constant.
+            None => (
+                self.inc1b.run(&main),
+                constant_response(&self.inc1b, &bias[..co]),
+            ),
+        };
+        let f32s = |v: &[f64]| -> Vec<f32> { v.iter().map(|&b| b as f32).collect() };
+        let (bias, c1b_bias) = (f32s(&bias), f32s(&c1b_bias));
+        let (h, w) = (main.h, main.w);
+        let mut out = vec![0.0f32; h * w * co];
+        const P: usize = EW_PIXELS;
+        let (gate_b, inc2_b) = bias[off..feat0].split_at(co);
+        out.par_chunks_mut(co * P)
+            .zip(main.d.par_chunks(main.c * P))
+            .zip(c1b.d.par_chunks(half * P))
+            .enumerate()
+            .for_each(|(chunk, ((o, m), c1))| {
+                // gate + bias, then the sigmoid over the whole contiguous block
+                // (a flat loop vectorises; a per-pixel one over `co` does not).
+                for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(main.c)) {
+                    for ((o, &g), &b) in o.iter_mut().zip(&m[off..off + co]).zip(gate_b) {
+                        *o = g + b;
+                    }
+                }
+                o.iter_mut().for_each(|v| *v = sigmoid(*v));
+                let px = o
+                    .chunks_exact_mut(co)
+                    .zip(m.chunks_exact(main.c))
+                    .zip(c1.chunks_exact(half));
+                for (i, ((o, m), c1)) in px.enumerate() {
+                    // Channels < half add inc1b, the rest inc2 (columns after the gate).
+                    let (inc2, feat) = m[off + co..feat0 + co].split_at(half);
+                    let (o_lo, o_hi) = o.split_at_mut(half);
+                    let (f_lo, f_hi) = feat.split_at(half);
+                    for k in 0..half {
+                        o_lo[k] = ha_mix(o_lo[k], f_lo[k], c1[k] + c1b_bias[k], slope);
+                        o_hi[k] = ha_mix(o_hi[k], f_hi[k], inc2[k] + inc2_b[k], slope);
+                    }
+                    post(chunk * P + i, o);
+                }
+            });
+        let down = self.has_down.then(|| {
+            let s = feat0 + co;
+            let b = &bias[s..s + co];
+            let mut d = vec![0.0f32; h * w * co];
+            d.par_chunks_mut(co * P)
+                .zip(main.d.par_chunks(main.c * P))
+                .for_each(|(o, m)| {
+                    for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(main.c)) {
+                        for ((o, &v), &b) in o.iter_mut().zip(&m[s..s + co]).zip(b) {
+                            *o = v + b;
+                        }
+                    }
+                });
+            Hwc { h, w, c: co, d }
+        });
+        (
+            Hwc {
+                h,
+                w,
+                c: co,
+                d: out,
+            },
+            down,
+        )
+    }
+}
+
+#[derive(Debug, Clone)]
+pub(super) struct Basic {
+    pub(super) ha1: Ha,
+    pub(super) ha2: Ha,
+    pub(super) bn1: (Vec<f32>, Vec<f32>),
+    pub(super) bn2: (Vec<f32>, Vec<f32>),
+    pub(super) down_bias: Option<Vec<f32>>,
+}
+
+impl Basic {
+    pub(super) fn new(p: &Scope<'_>, cin: usize, cout: usize, stride: usize) -> Result<Self> {
+        let down = if cin != cout || stride != 1 {
+            Some((
+                p.get("down.weight", &[cout, cin, 1, 1])?,
+                p.get("down.bias", &[cout])?.to_vec(),
+            ))
+        } else {
+            None
+        };
+        let bn = |n: &str| -> Result<(Vec<f32>, Vec<f32>)> {
+            Ok((
+                p.get(&format!("{n}.scale"), &[cout])?.to_vec(),
+                p.get(&format!("{n}.shift"), &[cout])?.to_vec(),
+            ))
+        };
+        Ok(Self {
+            ha1: Ha::new(
+                &p.scope("ha1"),
+                cin,
+                cout,
+                stride,
+                down.as_ref().map(|d| d.0),
+            )?,
+            ha2: Ha::new(&p.scope("ha2"), cout, cout, 1, None)?,
+            bn1: bn("bn1")?,
+            bn2: bn("bn2")?,
+            down_bias: down.map(|d| d.1),
+        })
+    }
+
+    pub(super) fn run(&self, x: &Hwc, eps: f32, slope: f32) -> Hwc {
+        let (s1, t1) = &self.bn1;
+        let (y, down) = self.ha1.run(x, eps, slope, |_, px| {
+            for ((v, s), t) in px.iter_mut().zip(s1).zip(t1) {
+                *v = (*v * s + t).max(0.0);
+            }
+        });
+        let co = y.c;
+        let (s2, t2) = &self.bn2;
+        // Identity branch: the fused 1×1 `down` conv plus its bias, or x itself.
+        let zero = vec![0.0f32; co];
+        let (id, bias) = match (&down, &self.down_bias) {
+            (Some(d), Some(b)) => (&d.d, b),
+            _ => (&x.d, &zero),
+        };
+        let (y, _) = self.ha2.run(&y, eps, slope, |p, px| {
+            let id = &id[p * co..(p + 1) * co];
+            for (k, v) in px.iter_mut().enumerate() {
+                *v = (*v * s2[k] + t2[k] + id[k] + bias[k]).max(0.0);
+            }
+        });
+        y
+    }
+}
+
+/// ReverseBlock, packed: `up4` as four output-parity 2×2 sub-convolutions
+/// (zero outside the input), `up2` as one GEMM to `[2·2·cout]` then scattered.
+#[derive(Debug, Clone)]
+#[allow(clippy::needless_range_loop)]
+pub(super) struct Reverse {
+    pub(super) cin: usize,
+    pub(super) cout: usize,
+    /// Per parity (py, px): `[2·2·cin, cout]`, row `(ty·2 + tx)·cin + ci`.
+    pub(super) up4: [Vec<f32>; 4],
+    pub(super) up4_b: Vec<f32>,
+    pub(super) conv: PackedConv,
+    pub(super) conv_b: Vec<f32>,
+    /// `[cin, 4·cout]`, column `(py·2 + px)·cout + co`.
+    pub(super) up2: Vec<f32>,
+    pub(super) up2_b: Vec<f32>,
+}
+
+/// For output parity p, the two input offsets and the kernel taps they use
+/// (ConvTranspose2d k4 s2 p1: `o = 2i − 1 + k`).
+pub(super) const UP4_TAPS: [[(isize, usize); 2]; 2] = [[(-1, 3), (0, 1)], [(0, 2), (1, 0)]];
+
+impl Reverse {
+    pub(super) fn new(p: &Scope<'_>, cin: usize, cout: usize) -> Result<Self> {
+        let w4 = p.get("up4.weight", &[cin, cout, 4, 4])?;
+        let w2 = p.get("up2.weight", &[cin, cout, 2, 2])?;
+        let up4 = std::array::from_fn(|par| {
+            let (py, px) = (par / 2, par % 2);
+            let mut wt = vec![0.0f32; 4 * cin * cout];
+            for ty in 0..2 {
+                for tx in 0..2 {
+                    let ky = UP4_TAPS[py][ty].1;
+                    let kx = UP4_TAPS[px][tx].1;
+                    for i in 0..cin {
+                        for o in 0..cout {
+                            wt[((ty * 2 + tx) * cin + i) * cout + o] =
+                                w4[((i * cout + o) * 4 + ky) * 4 + kx];
+                        }
+                    }
+                }
+            }
+            wt
+        });
+        let mut up2 = vec![0.0f32; cin * 4 * cout];
+        for i in 0..cin {
+            for o in 0..cout {
+                for t in 0..4 {
+                    up2[i * 4 * cout + t * cout + o] = w2[(i * cout + o) * 4 + t];
+                }
+            }
+        }
+        Ok(Self {
+            cin,
+            cout,
+            up4,
+            up4_b: p.get("up4.bias", &[cout])?.to_vec(),
+            conv: PackedConv::fused(
+                &[(p.get("conv.weight", &[cout, cout, 3, 3])?, cout, 3)],
+                cout,
+                3,
+                1,
+            ),
+            conv_b: p.get("conv.bias", &[cout])?.to_vec(),
+            up2,
+            up2_b: p.get("up2.bias", &[cout])?.to_vec(),
+        })
+    }
+
+    #[allow(clippy::needless_range_loop)]
+    pub(super) fn run(&self, x: &Hwc) -> Hwc {
+        let (h, w, ci, co) = (x.h, x.w, self.cin, self.cout);
+        let (ho, wo) = (2 * h, 2 * w);
+        // up4 → relu, written to the parity positions.
+        let mut y = vec![0.0f32; ho * wo * co];
+        let kk = 4 * ci;
+        let rows = (BAND_PIXELS / w).max(1);
+        for par in 0..4 {
+            let (py, px) = (par / 2, par % 2);
+            let mut sub = vec![0.0f32; h * w * co];
+            sub.par_chunks_mut(rows * w * co).enumerate().for_each_init(
+                Vec::new,
+                |col: &mut Vec<f32>, (band, dst)| {
+                    let m = dst.len() / co;
+                    col.clear();
+                    col.resize(m * kk, 0.0);
+                    let p0 = band * rows * w;
+                    for p in 0..m {
+                        let (iy, ix) = ((p0 + p) / w, (p0 + p) % w);
+                        for ty in 0..2 {
+                            let sy = iy as isize + UP4_TAPS[py][ty].0;
+                            if sy < 0 || sy >= h as isize {
+                                continue;
+                            }
+                            for tx in 0..2 {
+                                let sx = ix as isize + UP4_TAPS[px][tx].0;
+                                if sx < 0 || sx >= w as isize {
+                                    continue;
+                                }
+                                let src = (sy as usize * w + sx as usize) * ci;
+                                let t = p * kk + (ty * 2 + tx) * ci;
+                                col[t..t + ci].copy_from_slice(&x.d[src..src + ci]);
+                            }
+                        }
+                    }
+                    sgemm(
+                        m,
+                        co,
+                        kk,
+                        Mat { data: col, ld: kk },
+                        Mat {
+                            data: &self.up4[par],
+                            ld: co,
+                        },
+                        dst,
+                        co,
+                        false,
+                        1,
+                    );
+                },
+            );
+            // Output rows of parity py take input row oy / 2, pixels of parity px.
+            y.par_chunks_mut(wo * co)
+                .skip(py)
+                .step_by(2)
+                .zip(sub.par_chunks(w * co))
+                .for_each(|(row, src)| {
+                    for (ix, v) in src.chunks_exact(co).enumerate() {
+                        let o = &mut row[(2 * ix + px) * co..(2 * ix + px + 1) * co];
+                        for ((o, &v), &b) in o.iter_mut().zip(v).zip(&self.up4_b) {
+                            *o = (v + b).max(0.0);
+                        }
+                    }
+                });
+        }
+        let mut y = self.conv.run(&Hwc {
+            h: ho,
+            w: wo,
+            c: co,
+            d: y,
+        });
+        // up2: [h·w, 4·co], scattered and added with both biases, then relu.
+        let mut u = vec![0.0f32; h * w * 4 * co];
+        u.par_chunks_mut(BAND_PIXELS * 4 * co)
+            .enumerate()
+            .for_each(|(band, dst)| {
+                let m = dst.len() / (4 * co);
+                let p0 = band * BAND_PIXELS;
+                sgemm(
+                    m,
+                    4 * co,
+                    ci,
+                    Mat {
+                        data: &x.d[p0 * ci..(p0 + m) * ci],
+                        ld: ci,
+                    },
+                    Mat {
+                        data: &self.up2,
+                        ld: 4 * co,
+                    },
+                    dst,
+                    4 * co,
+                    false,
+                    1,
+                );
+            });
+        y.d.par_chunks_mut(wo * co)
+            .enumerate()
+            .for_each(|(oy, row)| {
+                let (iy, py) = (oy / 2, oy % 2);
+                for ox in 0..wo {
+                    let (ix, px) = (ox / 2, ox % 2);
+                    let src = ((iy * w + ix) * 4 + py * 2 + px) * co;
+                    for k in 0..co {
+                        let v = &mut row[ox * co + k];
+                        *v = (*v + self.conv_b[k] + u[src + k] + self.up2_b[k]).max(0.0);
+                    }
+                }
+            });
+        y
+    }
+}

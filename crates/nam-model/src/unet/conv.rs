@@ -1,0 +1,311 @@
+//! The convolution primitives of the fast `M_est`: HWC activations, k×k convolutions packed
+//! as GEMM operands (im2col over bands of output rows), InstanceNorm statistics, concatenation
+//! and the vectorisable `exp`/sigmoid of the element-wise passes.
+
+use rayon::prelude::*;
+
+use crate::sgemm::{Mat, sgemm, sgemm_into_transposed};
+
+/// Output pixels per GEMM band: enough rows for the GEMM kernel, small enough
+/// that the im2col band stays in cache.
+pub(super) const BAND_PIXELS: usize = 512;
+
+/// Pixels per rayon task in element-wise passes.
+pub(super) const EW_PIXELS: usize = 1024;
+
+/// Convolutions with fewer output channels than this run their GEMM with the
+/// pixel dimension along the SIMD lanes (16 f32 per AVX-512 register).
+pub(super) const TRANSPOSE_BELOW: usize = 16;
+
+/// An HWC activation: `d[(y·w + x)·c + ch]`.
+#[derive(Debug, Clone)]
+pub(super) struct Hwc {
+    pub(super) h: usize,
+    pub(super) w: usize,
+    pub(super) c: usize,
+    pub(super) d: Vec<f32>,
+}
+
+/// A k×k convolution (or several fused along the output channels) packed as
+/// the GEMM right-hand side `[k·k·cin, cout]`, row index `(ky·k + kx)·cin + ci`.
+#[derive(Debug, Clone)]
+pub(super) struct PackedConv {
+    pub(super) k: usize,
+    pub(super) stride: usize,
+    pub(super) pad: usize,
+    pub(super) cin: usize,
+    pub(super) cout: usize,
+    pub(super) wt: Vec<f32>,
+}
+
+impl PackedConv {
+    /// Fuses convs over the same input; each part is `(weight [co, cin, kp, kp], co, kp)`
+    /// with `kp == k` or `kp == 1` (a 1×1 conv placed at the centre tap; valid
+    /// because pad = k/2 makes the centre tap read exactly the 1×1 conv's pixel).
+    pub(super) fn fused(
+        parts: &[(&[f32], usize, usize)],
+        cin: usize,
+        k: usize,
+        stride: usize,
+    ) -> Self {
+        let cout: usize = parts.iter().map(|p| p.1).sum();
+        let mut wt = vec![0.0f32; k * k * cin * cout];
+        let mut col0 = 0;
+        for &(w, co, kp) in parts {
+            for o in 0..co {
+                for i in 0..cin {
+                    for ky in 0..kp {
+                        for kx in 0..kp {
+                            let (ty, tx) = if kp == k { (ky, kx) } else { (k / 2, k / 2) };
+                            wt[((ty * k + tx) * cin + i) * cout + col0 + o] =
+                                w[((o * cin + i) * kp + ky) * kp + kx];
+                        }
+                    }
+                }
+            }
+            col0 += co;
+        }
+        Self {
+            k,
+            stride,
+            pad: k / 2,
+            cin,
+            cout,
+            wt,
+        }
+    }
+
+    /// Replicate-padded convolution (no bias) of the first `cin` channels of
+    /// `x` (`x.c` may be wider: a view of a fused GEMM's leading columns).
+    pub(super) fn run(&self, x: &Hwc) -> Hwc {
+        self.run_with(x, &self.wt)
+    }
+
+    /// Like [`Self::run`], with `wt` (same packing as `self.wt`) as weights.
+    pub(super) fn run_with(&self, x: &Hwc, wt: &[f32]) -> Hwc {
+        debug_assert!(self.cin <= x.c);
+        debug_assert_eq!(wt.len(), self.wt.len());
+        let whole = x.c == self.cin;
+        let ho = (x.h + 2 * self.pad - self.k) / self.stride + 1;
+        let wo = (x.w + 2 * self.pad - self.k) / self.stride + 1;
+        let kk = self.k * self.k * self.cin;
+        let rows = (BAND_PIXELS / wo).max(1);
+        let mut out = vec![0.0f32; ho * wo * self.cout];
+        out.par_chunks_mut(rows * wo * self.cout)
+            .enumerate()
+            .for_each_init(
+                || (Vec::new(), Vec::new()),
+                |(col, tmp): &mut (Vec<f32>, Vec<f32>), (band, dst)| {
+                    let m = dst.len() / self.cout;
+                    col.resize(m * kk, 0.0);
+                    let p0 = band * rows * wo;
+                    for p in 0..m {
+                        let (oy, ox) = ((p0 + p) / wo, (p0 + p) % wo);
+                        let row = &mut col[p * kk..(p + 1) * kk];
+                        for ky in 0..self.k {
+                            let iy = (oy * self.stride + ky)
+                                .saturating_sub(self.pad)
+                                .min(x.h - 1);
+                            let x0 = ox * self.stride;
+                            if whole
+                                && self.stride == 1
+                                && x0 >= self.pad
+                                && x0 + self.k - self.pad <= x.w
+                            {
+                                // Interior, stride 1: the k taps of this row are
+                                // k·cin contiguous values; one copy instead of k.
+                                let src = (iy * x.w + x0 - self.pad) * x.c;
+                                let t = ky * self.k * self.cin;
+                                let len = self.k * self.cin;
+                                row[t..t + len].copy_from_slice(&x.d[src..src + len]);
+                                continue;
+                            }
+                            for kx in 0..self.k {
+                                let ix = (x0 + kx).saturating_sub(self.pad).min(x.w - 1);
+                                let src = (iy * x.w + ix) * x.c;
+                                let t = (ky * self.k + kx) * self.cin;
+                                row[t..t + self.cin].copy_from_slice(&x.d[src..src + self.cin]);
+                            }
+                        }
+                    }
+                    let b = Mat {
+                        data: wt,
+                        ld: self.cout,
+                    };
+                    if self.cout < TRANSPOSE_BELOW {
+                        tmp.resize(m * self.cout, 0.0);
+                        sgemm_into_transposed(
+                            m,
+                            self.cout,
+                            kk,
+                            Mat { data: col, ld: kk },
+                            b,
+                            tmp,
+                            m,
+                        );
+                        for (p, px) in dst.chunks_exact_mut(self.cout).enumerate() {
+                            for (o, v) in px.iter_mut().enumerate() {
+                                *v = tmp[o * m + p];
+                            }
+                        }
+                    } else {
+                        sgemm(
+                            m,
+                            self.cout,
+                            kk,
+                            Mat { data: col, ld: kk },
+                            b,
+                            dst,
+                            self.cout,
+                            false,
+                            1,
+                        );
+                    }
+                },
+            );
+        Hwc {
+            h: ho,
+            w: wo,
+            c: self.cout,
+            d: out,
+        }
+    }
+}
+
+/// `x − μ` per channel, with μ (f64) and the InstanceNorm scale `1/√(var + eps)`
+/// (biased variance in f64 from the centred values, as the reference's two passes).
+pub(super) fn centred_with_stats(x: &Hwc, eps: f32) -> (Hwc, Vec<f64>, Vec<f32>) {
+    let c = x.c;
+    let n = (x.h * x.w) as f64;
+    let add = |mut a: Vec<f64>, b: Vec<f64>| {
+        a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
+        a
+    };
+    let sum =
+        x.d.par_chunks(c * EW_PIXELS)
+            .map(|blk| {
+                let mut acc = vec![0.0f64; c];
+                for px in blk.chunks_exact(c) {
+                    acc.iter_mut()
+                        .zip(px)
+                        .for_each(|(a, &v)| *a += f64::from(v));
+                }
+                acc
+            })
+            .reduce(|| vec![0.0; c], add);
+    let mean: Vec<f64> = sum.iter().map(|s| s / n).collect();
+    let mean32: Vec<f32> = mean.iter().map(|&m| m as f32).collect();
+    let mut d = vec![0.0f32; x.d.len()];
+    let var = d
+        .par_chunks_mut(c * EW_PIXELS)
+        .zip(x.d.par_chunks(c * EW_PIXELS))
+        .map(|(dst, src)| {
+            let mut acc = vec![0.0f64; c];
+            for (o, px) in dst.chunks_exact_mut(c).zip(src.chunks_exact(c)) {
+                for (ch, (o, &v)) in o.iter_mut().zip(px).enumerate() {
+                    *o = v - mean32[ch];
+                    acc[ch] += (f64::from(v) - mean[ch]).powi(2);
+                }
+            }
+            acc
+        })
+        .reduce(|| vec![0.0; c], add);
+    let inv = var
+        .iter()
+        .map(|q| (1.0 / (q / n + f64::from(eps)).sqrt()) as f32)
+        .collect();
+    (Hwc { d, ..*x }, mean, inv)
+}
+
+/// Per output column of a packed conv, its response to the constant image
+/// `value[ci]` (replicate padding keeps a constant image constant): `Σ_taps,ci w·value`.
+pub(super) fn constant_response(conv: &PackedConv, value: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0f64; conv.cout];
+    for (r, row) in conv.wt.chunks_exact(conv.cout).enumerate() {
+        let v = value[r % conv.cin];
+        for (o, &w) in out.iter_mut().zip(row) {
+            *o += f64::from(w) * v;
+        }
+    }
+    out
+}
+
+pub(super) fn concat(a: &Hwc, b: &Hwc) -> Hwc {
+    let c = a.c + b.c;
+    let mut d = vec![0.0f32; a.h * a.w * c];
+    d.par_chunks_mut(c)
+        .zip(a.d.par_chunks(a.c).zip(b.d.par_chunks(b.c)))
+        .for_each(|(o, (x, y))| {
+            o[..a.c].copy_from_slice(x);
+            o[a.c..].copy_from_slice(y);
+        });
+    Hwc {
+        h: a.h,
+        w: a.w,
+        c,
+        d,
+    }
+}
+
+/// `e^x` without a libm call, so element-wise loops vectorise: Cody–Waite
+/// reduction `x = n·ln2 + r`, |r| ≤ ln2/2, and the Cephes `expf` polynomial
+/// (relative error < 3e-7, tested against f64). `x` is clamped to
+/// [−87, 88] (results stay normal); NaN stays NaN.
+#[inline(always)]
+pub(super) fn exp_fast(x: f32) -> f32 {
+    const MAGIC: f32 = 12_582_912.0; // 1.5·2^23: round to nearest by two adds
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    let x = x.clamp(-87.0, 88.0);
+    let t = x * std::f32::consts::LOG2_E + MAGIC;
+    let n = t - MAGIC;
+    let r = x - n * LN2_HI - n * LN2_LO;
+    let p = 1.987_569_1e-4;
+    let p = p * r + 1.398_199_9e-3;
+    let p = p * r + 8.333_452e-3;
+    let p = p * r + 4.166_579_6e-2;
+    let p = p * r + 1.666_666_5e-1;
+    let p = p * r + 0.5;
+    let e = 1.0 + r + r * r * p;
+    // n sits in the low mantissa bits of t: 2^n from integer ops only (no
+    // float → int conversion, which would keep the loop scalar).
+    let n_bits = t.to_bits().wrapping_sub(MAGIC.to_bits());
+    e * f32::from_bits(n_bits.wrapping_add(127) << 23)
+}
+
+#[inline(always)]
+pub(super) fn sigmoid(v: f32) -> f32 {
+    1.0 / (1.0 + exp_fast(-v))
+}
+
+/// One HA-Conv output value: `gate·leaky(feat) + inc`, `gate` already through the sigmoid.
+#[inline(always)]
+pub(super) fn ha_mix(gate: f32, feat: f32, inc: f32, slope: f32) -> f32 {
+    let b = if feat >= 0.0 { feat } else { feat * slope };
+    gate * b + inc
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Relative error bound of [`exp_fast`] (the polynomial's, plus f32 rounding).
+    const EXP_REL_TOL: f64 = 3e-7;
+
+    #[test]
+    fn exp_fast_matches_f64_exp_over_its_range_and_clamps_beyond() {
+        let mut worst = 0.0f64;
+        for i in 0..=200_000 {
+            let x = -87.0 + 175.0 * i as f32 / 200_000.0;
+            let want = f64::from(x).exp();
+            worst = worst.max((f64::from(exp_fast(x)) - want).abs() / want);
+        }
+        assert!(worst < EXP_REL_TOL, "worst relative error {worst:e}");
+        assert_eq!(exp_fast(-1e30), exp_fast(-87.0));
+        assert_eq!(exp_fast(1e30), exp_fast(88.0));
+        assert!(exp_fast(88.0).is_finite() && exp_fast(-87.0) > 0.0);
+        assert!(exp_fast(f32::NAN).is_nan());
+        assert_eq!(sigmoid(0.0), 0.5);
+        assert!(sigmoid(-200.0) < 1e-37 && sigmoid(200.0) == 1.0);
+    }
+}

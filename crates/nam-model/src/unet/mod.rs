@@ -1,0 +1,197 @@
+//! `M_est`, fast path: HWC activations, convolutions as im2col + blocked GEMM
+//! over bands of output rows (rayon), convs that read the same input fused
+//! into one GEMM (gate, inc1a, inc2 and the 1×1 `down` as a centre tap),
+//! transposed convs split into output-parity sub-convolutions.
+//!
+//! This file holds [`UNet`] (packing and the forward pass) and the image checks;
+//! `blocks.rs` the HA-Conv, BasicBlock and ReverseBlock; `conv.rs` the convolution
+//! primitives they are built from.
+
+use nam_weights::Weights;
+
+use crate::error::{ModelError, Result, check_finite, check_len};
+use crate::maps::ParamMap;
+
+mod blocks;
+mod conv;
+
+use blocks::{Basic, Reverse};
+use conv::{Hwc, PackedConv, concat};
+
+/// Largest accepted image side, in pixels (guards size arithmetic).
+pub const MAX_SIDE: usize = 1 << 15;
+
+pub(crate) fn pad_multiple(n: usize) -> usize {
+    n.next_multiple_of(nam_weights::UNET_MULTIPLE)
+}
+
+pub(crate) fn check_image(height: usize, width: usize) -> Result<()> {
+    let bad = |reason| {
+        Err(ModelError::ImageSize {
+            height,
+            width,
+            reason,
+        })
+    };
+    if height == 0 || width == 0 {
+        return bad("zero-sized");
+    }
+    if height > MAX_SIDE || width > MAX_SIDE {
+        return bad("side larger than 32768");
+    }
+    Ok(())
+}
+
+/// `M_est` on the CPU, packed for the fast path.
+#[derive(Debug, Clone)]
+pub struct UNet {
+    in_channels: usize,
+    /// The head sees `[decoder output, network input]` (`ModelConfig::input_skip`).
+    input_skip: bool,
+    params: usize,
+    eps: f32,
+    slope: f32,
+    stem: PackedConv,
+    enc: Vec<Basic>,
+    dec1: (Reverse, Basic),
+    dec2: (Reverse, Basic),
+    dec3: (Reverse, Basic),
+    dec4: (Basic, Basic),
+    head: PackedConv,
+}
+
+impl UNet {
+    /// Packs the `est.*` tensors of validated weights.
+    pub fn new(weights: &Weights) -> Result<Self> {
+        let cfg = weights.config();
+        let c = cfg.width;
+        let est = weights.scope("est");
+        let mut enc = Vec::new();
+        let mut prev = c;
+        for (k, w) in [c, 2 * c, 4 * c, 8 * c].into_iter().enumerate() {
+            let s = if k == 0 { 1 } else { 2 };
+            enc.push(Basic::new(
+                &est.scope(&format!("enc{}.0", k + 1)),
+                prev,
+                w,
+                s,
+            )?);
+            enc.push(Basic::new(&est.scope(&format!("enc{}.1", k + 1)), w, w, 1)?);
+            prev = w;
+        }
+        Ok(Self {
+            in_channels: cfg.in_channels,
+            input_skip: cfg.input_skip,
+            params: cfg.param_channels,
+            eps: cfg.norm_eps,
+            slope: cfg.slopes.ha,
+            stem: PackedConv::fused(
+                &[(est.get("stem.weight", &[c, cfg.in_channels, 7, 7])?, c, 7)],
+                cfg.in_channels,
+                7,
+                1,
+            ),
+            enc,
+            dec1: (
+                Reverse::new(&est.scope("dec1.0"), 8 * c, 8 * c)?,
+                Basic::new(&est.scope("dec1.1"), 8 * c, 8 * c, 1)?,
+            ),
+            dec2: (
+                Reverse::new(&est.scope("dec2.0"), 12 * c, 4 * c)?,
+                Basic::new(&est.scope("dec2.1"), 4 * c, 4 * c, 1)?,
+            ),
+            dec3: (
+                Reverse::new(&est.scope("dec3.0"), 6 * c, 2 * c)?,
+                Basic::new(&est.scope("dec3.1"), 2 * c, 2 * c, 1)?,
+            ),
+            dec4: (
+                Basic::new(&est.scope("dec4.0"), 3 * c, c, 1)?,
+                Basic::new(&est.scope("dec4.1"), c, c, 1)?,
+            ),
+            head: PackedConv::fused(
+                &[(
+                    est.get(
+                        "head.weight",
+                        &[cfg.param_channels, cfg.head_in_channels(), 7, 7],
+                    )?,
+                    cfg.param_channels,
+                    7,
+                )],
+                cfg.head_in_channels(),
+                7,
+                1,
+            ),
+        })
+    }
+
+    /// Runs `M_est` on the network input (CHW, `in_channels × height × width`,
+    /// docs/FORMAT.md) and returns the param map (HWC). Any size: the input is
+    /// replicate-padded bottom/right to a multiple of 8 and the output cropped.
+    pub fn estimate(&self, input: &[f32], height: usize, width: usize) -> Result<ParamMap> {
+        check_image(height, width)?;
+        let ci = self.in_channels;
+        check_len("network input", ci * height * width, input.len())?;
+        check_finite("network input", input)?;
+        let (hp, wp) = (pad_multiple(height), pad_multiple(width));
+        let mut d = vec![0.0f32; hp * wp * ci];
+        for y in 0..hp {
+            for x in 0..wp {
+                for c in 0..ci {
+                    d[(y * wp + x) * ci + c] =
+                        input[(c * height + y.min(height - 1)) * width + x.min(width - 1)];
+                }
+            }
+        }
+        let (eps, sl) = (self.eps, self.slope);
+        let photo = Hwc {
+            h: hp,
+            w: wp,
+            c: ci,
+            d,
+        };
+        let stem = self.stem.run(&photo);
+        // Encoder outputs e1..e4; e1..e3 are the decoder's skips.
+        let mut skips: Vec<Hwc> = Vec::with_capacity(4);
+        for pair in self.enc.chunks_exact(2) {
+            let input = skips.last().unwrap_or(&stem);
+            let y = pair[1].run(&pair[0].run(input, eps, sl), eps, sl);
+            skips.push(y);
+        }
+        let mut x = skips.pop().expect("four encoder levels");
+        x.d.iter_mut().for_each(|v| *v = v.atan());
+        let x = self.dec1.1.run(&self.dec1.0.run(&x), eps, sl);
+        let x = self
+            .dec2
+            .1
+            .run(&self.dec2.0.run(&concat(&x, &skips[2])), eps, sl);
+        let x = self
+            .dec3
+            .1
+            .run(&self.dec3.0.run(&concat(&x, &skips[1])), eps, sl);
+        let x = self
+            .dec4
+            .1
+            .run(&self.dec4.0.run(&concat(&x, &skips[0]), eps, sl), eps, sl);
+        let out = if self.input_skip {
+            self.head.run(&concat(&x, &photo))
+        } else {
+            self.head.run(&x)
+        };
+        let pc = self.params;
+        let data = if (height, width) == (hp, wp) {
+            out.d
+        } else {
+            let mut data = Vec::with_capacity(height * width * pc);
+            for y in 0..height {
+                data.extend_from_slice(&out.d[y * wp * pc..(y * wp + width) * pc]);
+            }
+            data
+        };
+        Ok(ParamMap {
+            height,
+            width,
+            channels: pc,
+            data,
+        })
+    }
+}
