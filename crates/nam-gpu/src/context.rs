@@ -418,26 +418,26 @@ impl GpuContext {
         Ok(())
     }
 
-    /// A uniform buffer with the given 32-bit words (padded to 16 bytes).
-    pub(crate) fn uniform(&self, words: &[u32]) -> Result<wgpu::Buffer> {
-        let mut w = words.to_vec();
-        w.resize(words.len().next_multiple_of(4).max(4), 0);
+    /// A uniform buffer holding `bytes` (a `crate::params` struct), zero-padded to a
+    /// multiple of 16 bytes.
+    pub(crate) fn uniform(&self, bytes: &[u8]) -> Result<wgpu::Buffer> {
+        let mut b = bytes.to_vec();
+        b.resize(bytes.len().next_multiple_of(16).max(16), 0);
         let buf = self.create_buffer(
             "nam-gpu params",
-            (w.len() * 4) as u64,
+            b.len() as u64,
             wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         )?;
-        self.queue
-            .write_buffer(&buf, 0, bytemuck::cast_slice::<u32, u8>(&w));
+        self.queue.write_buffer(&buf, 0, &b);
         Ok(buf)
     }
 
-    /// Records a dispatch of `key` with `uniform` words as binding 0 (when the family has one)
+    /// Records a dispatch of `key` with `uniform` bytes as binding 0 (when the family has one)
     /// followed by `bound` (buffers and texture views) in binding order.
     pub(crate) fn dispatch(
         &self,
         key: &PipelineKey,
-        uniform: Option<&[u32]>,
+        uniform: Option<&[u8]>,
         bound: &[Res<'_>],
         groups: [u32; 3],
     ) -> Result<Dispatch> {

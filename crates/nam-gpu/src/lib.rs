@@ -26,6 +26,7 @@ mod device;
 mod error;
 mod network;
 mod ops;
+mod params;
 pub mod probe;
 pub mod shaders;
 mod weights;

@@ -6,7 +6,12 @@ use crate::context::{
     DeviceTexture, Dispatch, GpuContext, MatmulVariant, PipelineKey, Res, groups_1d, linear_groups,
 };
 use crate::error::{GpuError, Result};
+use crate::params::{
+    ConvParams, ConvTParams, EwParams, GateParams, MatmulParams, NormParams, PeParams,
+    TexMatmulParams,
+};
 use crate::shaders::{Family, Precision};
+use bytemuck::Pod;
 
 /// A tensor view: a storage buffer and the element offset where the tensor starts.
 #[derive(Debug, Clone, Copy)]
@@ -64,19 +69,15 @@ impl ConvShape {
     }
 }
 
-fn f(v: f32) -> u32 {
-    v.to_bits()
-}
-
-/// Records `kernel` with `words` as its uniform (binding 0) and `bound` after it.
-fn launch(
+/// Records `kernel` with `params` as its uniform (binding 0) and `bound` after it.
+fn launch<P: Pod>(
     ctx: &GpuContext,
     kernel: PipelineKey,
-    words: &[u32],
+    params: &P,
     bound: &[Res<'_>],
     groups: [u32; 3],
 ) -> Result<Dispatch> {
-    ctx.dispatch(&kernel, Some(words), bound, groups)
+    ctx.dispatch(&kernel, Some(bytemuck::bytes_of(params)), bound, groups)
 }
 
 /// Conv2d with replicate padding: `dst = act(conv(src * norm_scale + norm_shift) + bias)`.
@@ -101,24 +102,24 @@ pub(crate) fn conv2d(
     let (ho, wo) = s.out_hw();
     let flags = u32::from(bias.is_some()) | (u32::from(norm.is_some()) << 1);
     let (act_code, slope) = act.code();
-    let words = [
-        s.cin,
-        s.h,
-        s.w,
-        s.cout,
+    let params = ConvParams {
+        cin: s.cin,
+        h: s.h,
+        w: s.w,
+        cout: s.cout,
         ho,
         wo,
-        s.stride,
-        s.pad,
-        src.base,
-        dst.base,
+        stride: s.stride,
+        pad: s.pad,
+        in_base: src.base,
+        out_base: dst.base,
         flags,
-        act_code,
-        f(slope),
-        0,
-        0,
-        0,
-    ];
+        act: act_code,
+        slope,
+        _pad0: 0,
+        _pad1: 0,
+        _pad2: 0,
+    };
     let key = PipelineKey {
         family: Family::Conv2d,
         entry: "conv2d",
@@ -129,7 +130,7 @@ pub(crate) fn conv2d(
     launch(
         ctx,
         key,
-        &words,
+        &params,
         &[
             Res::Buf(src.buf),
             Res::Buf(weight),
@@ -162,20 +163,20 @@ pub(crate) fn conv_transpose2d(
     }
     let ho = (s.h - 1) * s.stride + s.k - 2 * s.pad;
     let wo = (s.w - 1) * s.stride + s.k - 2 * s.pad;
-    let words = [
-        s.cin,
-        s.h,
-        s.w,
-        s.cout,
+    let params = ConvTParams {
+        cin: s.cin,
+        h: s.h,
+        w: s.w,
+        cout: s.cout,
         ho,
         wo,
-        s.pad,
-        src.base,
-        dst.base,
-        u32::from(bias.is_some()),
-        u32::from(relu),
-        0,
-    ];
+        pad: s.pad,
+        in_base: src.base,
+        out_base: dst.base,
+        flags: u32::from(bias.is_some()),
+        act: u32::from(relu),
+        _pad0: 0,
+    };
     let key = PipelineKey {
         family: Family::ConvTranspose,
         entry: "conv_transpose2d",
@@ -186,7 +187,7 @@ pub(crate) fn conv_transpose2d(
     launch(
         ctx,
         key,
-        &words,
+        &params,
         &[
             Res::Buf(src.buf),
             Res::Buf(weight),
@@ -207,7 +208,12 @@ pub(crate) fn instance_norm_stats(
     eps: f32,
     norm: &wgpu::Buffer,
 ) -> Result<Dispatch> {
-    let words = [channels, hw, src.base, f(eps)];
+    let params = NormParams {
+        channels,
+        hw,
+        in_base: src.base,
+        eps,
+    };
     let key = PipelineKey {
         family: Family::InstanceNorm,
         entry: "instance_norm_stats",
@@ -217,7 +223,7 @@ pub(crate) fn instance_norm_stats(
     launch(
         ctx,
         key,
-        &words,
+        &params,
         &[Res::Buf(src.buf), Res::Buf(norm)],
         [groups_1d(channels, 1)?, 1, 1],
     )
@@ -251,16 +257,16 @@ pub(crate) fn ha_gate(
         GateTail::Relu => (1, None),
         GateTail::Residual(v) => (2, Some(v)),
     };
-    let words = [
+    let params = GateParams {
         channels,
         hw,
         mode,
-        res.map_or(0, |v| v.base),
-        dst.base,
-        f(slope),
-        0,
-        0,
-    ];
+        res_base: res.map_or(0, |v| v.base),
+        out_base: dst.base,
+        slope,
+        _pad0: 0,
+        _pad1: 0,
+    };
     launch(
         ctx,
         PipelineKey {
@@ -269,7 +275,7 @@ pub(crate) fn ha_gate(
             precision,
             constants: vec![],
         },
-        &words,
+        &params,
         &[
             Res::Buf(a),
             Res::Buf(b),
@@ -304,7 +310,12 @@ pub(crate) fn elementwise(
         Elementwise::AddRelu(v) => ("add_relu", Some(v)),
         Elementwise::Atan => ("atan_act", None),
     };
-    let words = [n, src.base, src2.map_or(0, |v| v.base), dst.base];
+    let params = EwParams {
+        n,
+        in_base: src.base,
+        in2_base: src2.map_or(0, |v| v.base),
+        out_base: dst.base,
+    };
     launch(
         ctx,
         PipelineKey {
@@ -313,7 +324,7 @@ pub(crate) fn elementwise(
             precision,
             constants: vec![],
         },
-        &words,
+        &params,
         &[
             Res::Buf(src.buf),
             Res::Buf(src2.map_or(ctx.dummy(), |v| v.buf)),
@@ -334,7 +345,12 @@ pub(crate) fn pos_enc(
     dst: View<'_>,
     out_stride: u32,
 ) -> Result<Dispatch> {
-    let words = [n, out_stride, dst.base, 0];
+    let params = PeParams {
+        n,
+        out_stride,
+        out_base: dst.base,
+        _pad0: 0,
+    };
     launch(
         ctx,
         PipelineKey {
@@ -343,7 +359,7 @@ pub(crate) fn pos_enc(
             precision,
             constants: vec![("OCTAVES", octaves)],
         },
-        &words,
+        &params,
         &[
             Res::Buf(dirs),
             Res::Buf(dst.buf),
@@ -368,7 +384,12 @@ pub(crate) fn pos_enc_tex(
             reason: format!("{n} rows into a texture of {}", dst.rows),
         });
     }
-    let words = [n, dst.texels, 0, 0];
+    let params = PeParams {
+        n,
+        out_stride: dst.texels,
+        out_base: 0,
+        _pad0: 0,
+    };
     launch(
         ctx,
         PipelineKey {
@@ -377,7 +398,7 @@ pub(crate) fn pos_enc_tex(
             precision: dst.precision,
             constants: vec![("OCTAVES", octaves)],
         },
-        &words,
+        &params,
         &[Res::Buf(dirs), Res::Buf(ctx.dummy()), Res::Tex(&dst.view)],
         linear_groups(u64::from(n) * u64::from(dst.texels), 64)?,
     )
@@ -429,16 +450,16 @@ pub(crate) fn matmul_tex(
         TexOut::Texture { tex, texel_base } => (texel_base, 0, 0, &tex.view, ctx.dummy()),
         TexOut::Buffer { buf, stride } => (0, 1, stride, ctx.dummy_tex(w.precision), buf),
     };
-    let words = [
+    let params = TexMatmulParams {
         rows,
         cols,
         inner4,
-        base,
+        y_texel_base: base,
         out_buf,
-        stride,
-        act_code,
-        f(slope),
-    ];
+        y_stride: stride,
+        act: act_code,
+        slope,
+    };
     launch(
         ctx,
         PipelineKey {
@@ -447,7 +468,7 @@ pub(crate) fn matmul_tex(
             precision: w.precision,
             constants: vec![],
         },
-        &words,
+        &params,
         &[
             Res::Tex(&x.view),
             Res::Tex(&w.view),
@@ -508,20 +529,20 @@ pub(crate) fn matmul_as(
     act: Act,
 ) -> Result<Dispatch> {
     let (act_code, slope) = act.code();
-    let words = [
+    let params = MatmulParams {
         rows,
         cols,
         inner,
-        x.stride,
-        x.view.base,
-        y.stride,
-        y.view.base,
-        act_code,
-        f(slope),
-        0,
-        0,
-        0,
-    ];
+        x_stride: x.stride,
+        x_base: x.view.base,
+        y_stride: y.stride,
+        y_base: y.view.base,
+        act: act_code,
+        slope,
+        _pad0: 0,
+        _pad1: 0,
+        _pad2: 0,
+    };
     let (entry, row_tile) = match variant {
         MatmulVariant::Tiled => ("matmul", 64),
         // Buffer operands: the texture variant's buffer-only stand-in.
@@ -535,7 +556,7 @@ pub(crate) fn matmul_as(
             precision,
             constants: vec![],
         },
-        &words,
+        &params,
         &[Res::Buf(x.view.buf), Res::Buf(w), Res::Buf(y.view.buf)],
         [groups_1d(cols, 64)?, groups_1d(rows, row_tile)?, 1],
     )

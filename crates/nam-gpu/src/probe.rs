@@ -4,6 +4,7 @@ use std::time::Instant;
 
 use crate::context::{GpuContext, PipelineKey, Res};
 use crate::error::Result;
+use crate::params::PeakParams;
 use crate::shaders::{Family, Precision};
 
 /// Runs `shaders/smoke.wgsl` (`x -> 2x + 1`) on `data` and reads the result back.
@@ -34,7 +35,12 @@ pub fn fma_peak_gflops(ctx: &GpuContext, groups: u32, iters: u32, reps: u32) -> 
     };
     let d = ctx.dispatch(
         &key,
-        Some(&[iters, 1.0f32.to_bits(), 0, 0]),
+        Some(bytemuck::bytes_of(&PeakParams {
+            iters,
+            seed: 1.0,
+            _pad0: 0,
+            _pad1: 0,
+        })),
         &[Res::Buf(&out.buffer)],
         [groups, 1, 1],
     )?;
