@@ -1,6 +1,9 @@
 //! Every kernel against a plain CPU loop, on odd sizes, in f32 and (when the adapter has
 //! SHADER_F16) f16. Without an adapter tests print a reason and pass, except under `CI=true`
 //! ([`crate::skip_without_adapter`]).
+//!
+//! Over 600 lines on purpose: one test per kernel family, each next to the plain CPU loop it is
+//! checked against, sharing one device and one set of helpers; it is test code only.
 
 use std::sync::OnceLock;
 

@@ -4,6 +4,9 @@
 //! sizes (1×1, 7×7, 13×13, 40×40 — none a multiple of the U-Net's 8). Every output must be
 //! finite and ≥ 0, black exactly where the geometry says so, and invalid input must be an
 //! error that names the problem.
+//!
+//! Over 600 lines on purpose: one catalogue of stiff scenes and degenerate inputs, each a short
+//! test on the same loaded model, read as one list against DESIGN §7.
 
 mod common;
 
