@@ -8,7 +8,7 @@
 //!
 //! Two kinds of checks: what any plausible relight must do ([`IDENTITY_LOG_L1_MAX`],
 //! [`SIDE_LIGHT_RATIO_MIN`], and a chromaticity error below a grey relight's: it keeps the
-//! photo's colour), and the shipped model's measured values per photo ([`MEASURED`], within
+//! photo's colour), and the shipped model's measured values per photo ([`MEASURED_FILE`], within
 //! [`ABS_TOL`] / [`REL_TOL`]), so that a change in the runtime or the weights that moves any of
 //! them shows up. (The model shipped before the U-Net's input skip relit these photos nearly
 //! grey: colourfulness ratio ≈ 0.1 for five of them, chromaticity error 0.04–0.82.)
@@ -32,24 +32,22 @@ const IDENTITY_LOG_L1_MAX: f64 = 0.8;
 /// Any plausible relight gets brighter on the side the light moves to: the right-over-left ratio
 /// grows at least this much from the left light to the right light.
 const SIDE_LIGHT_RATIO_MIN: f64 = 1.5;
-/// The shipped model's values (`cargo test --release -p nam --test real_photos -- --nocapture`
-/// prints them): identity log-L1, chromaticity error `Σ_c |o_c/Σo − p_c/Σp|` (0: same hue and
-/// saturation, 2: disjoint primaries), colourfulness ratio (mean `max_c − min_c` of the
-/// chromaticity, relit / photo; 1: as colourful as the photo), side-light ratio.
-const MEASURED: [(&str, [f64; 4]); 8] = [
-    ("blue-metal-tiped-mush", [0.1817, 0.0948, 1.01, 4.42]),
-    ("dark-mush", [0.0717, 0.0168, 1.02, 9.48]),
-    ("fancy-wood-pattern", [0.3907, 0.0571, 0.99, 2.42]),
-    ("green-carbon-fiber", [0.1560, 0.0815, 0.98, 5.78]),
-    ("long-thin-planks", [0.1045, 0.0407, 0.96, 1.96]),
-    ("nailed-tiles", [0.0960, 0.0130, 1.52, 7.77]),
-    ("redish-mush", [0.1318, 0.0698, 0.95, 5.07]),
-    ("rusty-can-label", [0.1468, 0.0710, 1.06, 2.49]),
-];
-/// Allowed drift of log-L1 and chromaticity error from [`MEASURED`] (f32 rounding across CPUs
+/// The shipped model's values, recorded by this test (`NAM_UPDATE_MEASURED=1 cargo test --release
+/// -p nam --test real_photos`) together with the model's fingerprint, so that they are computed,
+/// never edited by hand: identity log-L1, chromaticity error `Σ_c |o_c/Σo − p_c/Σp|` (0: same hue
+/// and saturation, 2: disjoint primaries), colourfulness ratio (mean `max_c − min_c` of the
+/// chromaticity, relit / photo; 1: as colourful as the photo), side-light ratio. A different
+/// embedded model fails the test until its values are recorded.
+const MEASURED_FILE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../tests/fixtures/real_photos_measured.tsv"
+);
+/// Setting this environment variable to `1` records [`MEASURED_FILE`] instead of comparing.
+const UPDATE_ENV: &str = "NAM_UPDATE_MEASURED";
+/// Allowed drift of log-L1 and chromaticity error from [`MEASURED_FILE`] (f32 rounding across CPUs
 /// moves them by < 1e-3).
 const ABS_TOL: f64 = 0.02;
-/// Allowed relative drift of the two ratios from [`MEASURED`].
+/// Allowed relative drift of the two ratios from [`MEASURED_FILE`].
 const REL_TOL: f64 = 0.1;
 
 /// What one photo's relights measure.
@@ -181,15 +179,17 @@ fn the_embedded_model_relights_every_real_photo_as_measured() {
             m.chroma_err,
             m.grey_chroma_err
         );
-        let Some((_, want)) = MEASURED.iter().find(|(n, _)| n == name) else {
-            panic!("{name}: a photo without a MEASURED row; add the printed values");
+    }
+    if std::env::var(UPDATE_ENV).as_deref() == Ok("1") {
+        record(model.fingerprint(), &measured);
+        return;
+    }
+    let recorded = read_recorded(model.fingerprint());
+    for (name, m) in &measured {
+        let Some((_, want)) = recorded.iter().find(|(n, _)| n == name) else {
+            panic!("{name}: no recorded values in {MEASURED_FILE}; rerun with {UPDATE_ENV}=1");
         };
-        let got = [
-            m.log_l1,
-            m.chroma_err,
-            m.colourfulness_ratio,
-            m.side_light_ratio,
-        ];
+        let got = m.values();
         let labels = [
             "identity log-L1",
             "chroma error",
@@ -207,4 +207,51 @@ fn the_embedded_model_relights_every_real_photo_as_measured() {
             );
         }
     }
+}
+
+impl Measures {
+    /// The recorded quantities, in [`MEASURED_FILE`]'s column order.
+    fn values(&self) -> [f64; 4] {
+        [
+            self.log_l1,
+            self.chroma_err,
+            self.colourfulness_ratio,
+            self.side_light_ratio,
+        ]
+    }
+}
+
+/// Writes [`MEASURED_FILE`] (first line `model<TAB>fingerprint`, then one row per photo).
+fn record(fingerprint: &str, measured: &[(String, Measures)]) {
+    let mut text = format!("model\t{fingerprint}\n");
+    for (name, m) in measured {
+        let v = m.values();
+        text += &format!(
+            "{name}\t{:.4}\t{:.4}\t{:.3}\t{:.3}\n",
+            v[0], v[1], v[2], v[3]
+        );
+    }
+    std::fs::write(MEASURED_FILE, text).expect("write the measured values");
+    eprintln!("recorded {MEASURED_FILE}");
+}
+
+/// The rows of [`MEASURED_FILE`]; panics with what to do when it belongs to another model.
+fn read_recorded(fingerprint: &str) -> Vec<(String, [f64; 4])> {
+    let text = std::fs::read_to_string(MEASURED_FILE)
+        .unwrap_or_else(|e| panic!("{MEASURED_FILE}: {e}; run with {UPDATE_ENV}=1"));
+    let mut lines = text.lines();
+    let recorded_for = lines.next().and_then(|l| l.strip_prefix("model\t"));
+    assert_eq!(
+        recorded_for,
+        Some(fingerprint),
+        "{MEASURED_FILE} holds another model's values; rerun with {UPDATE_ENV}=1 to record this one's"
+    );
+    lines
+        .map(|line| {
+            let cols: Vec<&str> = line.split('\t').collect();
+            assert_eq!(cols.len(), 5, "malformed row {line:?} in {MEASURED_FILE}");
+            let v = |k: usize| cols[k].parse::<f64>().expect("a number");
+            (cols[0].to_string(), [v(1), v(2), v(3), v(4)])
+        })
+        .collect()
 }
