@@ -27,6 +27,7 @@ from torch import nn
 
 from . import ggx
 from .model import PARAM_CHANNELS, NDEnc, RenderMLP, init_linear, positional_encoding, query_dirs
+from .protocols import uniform_hemisphere
 
 #: Inputs of ``E``: diffuse (3), specular (3), roughness, ln roughness, normal (3).
 MAP_FEATURES = 11
@@ -92,19 +93,12 @@ def random_maps(gen: torch.Generator, n: int) -> dict[str, torch.Tensor]:
     return {"diffuse": diffuse, "specular": specular, "roughness": roughness, "normal": normal}
 
 
-def uniform_upper(gen: torch.Generator, n: int) -> torch.Tensor:
-    z = torch.rand(n, generator=gen)
-    phi = 2 * math.pi * torch.rand(n, generator=gen)
-    r = (1 - z * z).clamp(min=0).sqrt()
-    return torch.stack([r * phi.cos(), r * phi.sin(), z], dim=-1)
-
-
 def random_directions(gen: torch.Generator, maps: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
     """Unit ``(wi, wo)`` ``[n, 3]`` in the surface frame (z up): ``wo`` uniform over the upper
     hemisphere; ``wi`` uniform too, or (share ``MIRROR_FRAC``) the mirror of ``wo`` about the shading
     normal, perturbed by ~2α so the queries cover the highlight lobe and its flanks."""
     n = maps["roughness"].shape[0]
-    wo = uniform_upper(gen, n)
+    wo = uniform_hemisphere(gen, (n,))
     normal = maps["normal"]
     mirror = 2 * ggx.dot(wo, normal)[:, None] * normal - wo
     alpha = maps["roughness"].clamp(min=0.01) ** 2
@@ -112,7 +106,7 @@ def random_directions(gen: torch.Generator, maps: dict[str, torch.Tensor]) -> tu
     near = ggx.normalize(mirror + jitter)
     near = torch.cat([near[:, :2], near[:, 2:].abs()], dim=-1)
     use_mirror = torch.rand(n, 1, generator=gen) < MIRROR_FRAC
-    wi = torch.where(use_mirror, near, uniform_upper(gen, n))
+    wi = torch.where(use_mirror, near, uniform_hemisphere(gen, (n,)))
     return ggx.normalize(wi), wo
 
 
