@@ -274,6 +274,13 @@ def parse_args(argv=None):
         help="share of exemplars rendered at the capture light/view instead of Reflect (0: paper)",
     )
     ap.add_argument(
+        "--moved-frac",
+        type=float,
+        default=0.0,
+        help="share of exemplars with the view at the camera and the light moved off it "
+        "(protocols.moved_light: highlights in the frame, moved; 0: paper); drawn before --identity-frac",
+    )
+    ap.add_argument(
         "--shared-geometry",
         action="store_true",
         help="the materials of a step share exemplar light/view and a uniform pixel subset; ND_enc "
@@ -435,6 +442,7 @@ def train(args) -> dict:
             outputs = max(1, round(args.outputs * (args.size / size) ** 2))
         maps, net_input, cap = draw_batch(seeds, size, device, bank, args.real_frac, args.phone)
         light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)
+        light, view = protocols.mix_moved_light(data_gen, light, view, args.moved_frac, cap.camera())
         light, view = protocols.mix_identity(data_gen, light, view, args.identity_frac, (cap.flash(), cap.camera()))
         model.train()
         if state["frozen_bn"]:

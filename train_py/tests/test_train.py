@@ -183,6 +183,32 @@ def test_mix_identity_replaces_the_chosen_share_of_exemplars_by_the_capture_geom
     assert torch.equal(mixed_l[kept], light[kept]) and torch.equal(mixed_v[kept], view[kept])
 
 
+def mirror_point_in_frame(light: torch.Tensor, view: torch.Tensor) -> torch.Tensor:
+    """Whether the flat surface's mirror point between ``light`` and ``view`` lies in [-1, 1]²."""
+    lz, vz = light[..., 2:], view[..., 2:]
+    p = (light[..., :2] * vz + view[..., :2] * lz) / (lz + vz)
+    return (p.abs() <= 1).all(-1)
+
+
+def test_moved_light_keeps_the_view_at_the_camera_and_puts_most_highlights_in_the_frame():
+    g = torch.Generator().manual_seed(5)
+    cam = torch.tensor([0.0, 0.0, ggx.capture_distance(45.0)])
+    light, view = protocols.moved_light(g, 32, 64, cam)
+    assert torch.equal(view, cam.expand_as(view))
+    r = torch.linalg.vector_norm(light[..., :2] - cam[:2], dim=-1)
+    assert float(r.min()) >= protocols.MOVED_LIGHT_RADIUS[0] - 1e-6
+    assert float(r.max()) <= protocols.MOVED_LIGHT_RADIUS[1] + 1e-6
+    assert float(light[..., 2].min()) >= 0.5
+    moved_share = float(mirror_point_in_frame(light, view).float().mean())
+    ref_l, ref_v = protocols.reflect(g, 32, 64)
+    reflect_share = float(mirror_point_in_frame(ref_l, ref_v).float().mean())
+    assert moved_share > 0.6 and reflect_share < 0.25, (moved_share, reflect_share)
+    mixed_l, mixed_v = protocols.mix_moved_light(g, ref_l, ref_v, 0.3, cam)
+    at_cam = (mixed_v == cam).all(-1)
+    assert 0.25 < float(at_cam.float().mean()) < 0.35
+    assert torch.equal(mixed_l[~at_cam], ref_l[~at_cam])
+
+
 def test_shared_geometry_step_is_the_per_material_step_with_one_nd_enc_per_exemplar_pixel():
     torch.manual_seed(0)
     model = NamModel(CONFIGS["tiny"])
