@@ -1,6 +1,11 @@
-"""Evaluation on held-out procedural SVBRDFs (paper §4, DESIGN.md §8) → Markdown table.
+"""Evaluation on held-out SVBRDFs (paper §4, DESIGN.md §8) → Markdown table.
 
     python -m train_py.evaluate --model models/default.safetensors -o models/default.eval.md
+
+The procedural set is ``assets/heldout`` (the files ``nam-cli report`` reads; box-downsampled in
+linear space as nam-eval does), and the light/view pairs come from ``protocols.seeded_pairs``
+(nam-ggx's sampler, draw for draw), so this table and the Rust report score the same images
+(``python -m train_py.eval_agreement`` pins both).
 
 Protocols: Reflect (training sampling), Identity (co-located at the capture position),
 Hemisphere (independent light and view uniform on the hemisphere r = 4; 128 per material).
@@ -24,7 +29,41 @@ from .model import NamModel
 
 SSIM_C1 = 0.01**2
 SSIM_C2 = 0.03**2
+#: Base of the per-material pair seeds (nam-eval's ``heldout::EVAL_SEED``).
 EVAL_SEED = 4242
+#: The held-out procedural set (``gen.HELD_OUT_SEED_BASE + 2000 + i``, 64², 8-bit 4-panel PNGs).
+HELDOUT_DIR = Path(__file__).resolve().parent.parent / "assets" / "heldout"
+
+
+def pair_seed(material_seed: int, protocol: str) -> int:
+    """The pair seed of one material and protocol (nam-eval's ``Material::pairs``)."""
+    return EVAL_SEED + material_seed % 100000 + 17 * protocols.PROTOCOLS.index(protocol)
+
+
+def box_downsample(maps: dict[str, torch.Tensor], size: int) -> dict[str, torch.Tensor]:
+    """Maps ``[1, S, S, ...]`` averaged over ``S/size``² blocks in linear space, normals
+    renormalised (nam-eval's ``heldout::downsample``); ``size`` must divide ``S``."""
+    side = maps["roughness"].shape[-1]
+    if size == side:
+        return maps
+    if size <= 0 or side % size:
+        raise SystemExit(f"cannot resample {side}² maps to {size}² (needs a divisor of {side})")
+    pool = lambda v: F.avg_pool2d(v.movedim(-1, 1), side // size).movedim(1, -1)  # noqa: E731
+    out = {k: pool(v) for k, v in maps.items() if k != "roughness"}
+    out["normal"] = ggx.normalize(out["normal"])
+    out["roughness"] = pool(maps["roughness"][..., None])[..., 0]
+    return out
+
+
+def heldout_sets(count: int | None, size: int | None):
+    """``(seed, maps)`` of the first ``count`` files of ``assets/heldout`` at ``size``² (default: the
+    files' own 64²); the seed comes from the file name."""
+    files = sorted(HELDOUT_DIR.glob("material_*.png"))[:count]
+    if not files:
+        raise SystemExit(f"no material_*.png in {HELDOUT_DIR}")
+    for f in files:
+        maps = materials.load_maps(f, None)
+        yield int(f.stem.rsplit("_", 1)[1]), box_downsample(maps, size or maps["roughness"].shape[-1])
 
 
 def gaussian_window(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
@@ -98,9 +137,8 @@ def evaluate_maps(
             with torch.no_grad():
                 params = model.estimate(ggx.network_input(photo, model.config.log_mode))
         for p in protocol_names:
-            g = torch.Generator().manual_seed(EVAL_SEED + seed % 100000 + 17 * protocols.PROTOCOLS.index(p))
-            light, view = protocols.sample(p, g, 1, counts[p])
-            light, view = light.to(device), view.to(device)
+            light, view = protocols.seeded_pairs(p, counts[p], pair_seed(seed, p))
+            light, view = light.float().to(device), view.float().to(device)
             gt = ggx.render_maps(maps, light, view)[0]  # [K, H, W, 3]
             wi, wo, _ = ggx.directions(light, view, size, size)
             preds = {
@@ -151,8 +189,8 @@ def main(argv: list[str] | None = None) -> None:
         choices=["procedural", "test"],
         help="held-out procedural materials, or the real CC0 sets of materials/test",
     )
-    ap.add_argument("--materials", type=int, default=None, help="how many (procedural: 8; test: all 19)")
-    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--materials", type=int, default=None, help="how many (default: all; procedural 8, test 19)")
+    ap.add_argument("--size", type=int, default=None, help="image side (procedural: 64 or a divisor; test: 128)")
     ap.add_argument("--hemisphere", type=int, default=128)
     ap.add_argument("--reflect", type=int, default=8)
     ap.add_argument("--threads", type=int, default=None)
@@ -165,21 +203,24 @@ def main(argv: list[str] | None = None) -> None:
     model = load_model(args.model) if args.model else None
     t0 = time.time()
     if args.set == "test":
+        size = args.size or 128
         files = materials.list_files("test")[: args.materials]
-        sets = ((EVAL_SEED + i, materials.load_maps(f, args.size)) for i, f in enumerate(files))
+        sets = ((EVAL_SEED + i, materials.load_maps(f, size)) for i, f in enumerate(files))
         res = evaluate_maps(model, sets, len(files), args.hemisphere, args.reflect)
-        what = f"{len(files)} real CC0 SVBRDFs of materials/test (never trained on) at {args.size}²"
+        what = f"{len(files)} real CC0 SVBRDFs of materials/test (never trained on) at {size}²"
     else:
-        seeds = [gen.HELD_OUT_SEED_BASE + 2000 + i for i in range(args.materials or 8)]
-        res = evaluate_protocols(model, seeds, args.size, args.hemisphere, args.reflect)
-        what = f"{len(seeds)} held-out procedural SVBRDFs (seeds {seeds[0]}..{seeds[-1]}) at {args.size}²"
+        sets = list(heldout_sets(args.materials, args.size))
+        size = sets[0][1]["roughness"].shape[-1]
+        res = evaluate_maps(model, sets, len(sets), args.hemisphere, args.reflect)
+        seeds = [seed for seed, _ in sets]
+        what = f"{len(sets)} held-out procedural SVBRDFs (assets/heldout, seeds {seeds[0]}..{seeds[-1]}) at {size}²"
     note = (
         f"{what}, "
         f"LDR 8-bit capture input; Reflect {args.reflect}, Identity 1, Hemisphere {args.hemisphere} "
         f"light/view pairs per material. Model: `{args.model}`. "
         f"Command: `python -m train_py.evaluate --model {args.model} --set {args.set} "
         + (f"--materials {args.materials} " if args.materials else "")
-        + f"--size {args.size} --hemisphere {args.hemisphere}` ({time.time() - t0:.0f} s)."
+        + f"--size {size} --hemisphere {args.hemisphere}` ({time.time() - t0:.0f} s)."
     )
     md = markdown(res, "Evaluation: log-L1 and SSIM by protocol", note)
     print(md)

@@ -77,8 +77,8 @@ def decode(panels: torch.Tensor) -> dict[str, torch.Tensor]:
     }
 
 
-def load_maps(path: Path, size: int) -> dict[str, torch.Tensor]:
-    """A whole material set at ``size``² as maps ``[1, size, size, ...]`` (evaluation)."""
+def load_maps(path: Path, size: int | None) -> dict[str, torch.Tensor]:
+    """A whole material set at ``size``² (None: as stored) as maps ``[1, size, size, ...]`` (evaluation)."""
     return {k: v[None] for k, v in decode(load_panels(path, size)).items()}
 
 

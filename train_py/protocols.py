@@ -5,6 +5,8 @@ All functions return light and view positions ``[B, K, 3]`` in surface units.
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from .ggx import CAPTURE_DISTANCE
@@ -115,6 +117,68 @@ def mix_moved_light(
 
 
 PROTOCOLS = ("reflect", "identity", "hemisphere")
+
+_MASK64 = (1 << 64) - 1
+
+
+class SplitMix64:
+    """nam-ggx's ``SplitMix64`` (``crates/nam-ggx/src/protocol.rs``), bit for bit."""
+
+    def __init__(self, seed: int):
+        self.state = seed & _MASK64
+
+    def next_u64(self) -> int:
+        self.state = (self.state + 0x9E3779B97F4A7C15) & _MASK64
+        z = self.state
+        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
+        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
+        return z ^ (z >> 31)
+
+    def uniform(self) -> float:
+        """Uniform on [0, 1): the top 53 bits times 2⁻⁵³."""
+        return (self.next_u64() >> 11) * 2.0**-53
+
+    def normal(self) -> float:
+        """Box–Muller, one of the pair (``u1 ∈ (0, 1]`` keeps the log finite)."""
+        u1 = 1.0 - self.uniform()
+        u2 = self.uniform()
+        return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+    def hemisphere(self) -> tuple[float, float, float]:
+        """Uniform by area on the unit upper hemisphere, ``z ∈ (0, 1]``."""
+        z = 1.0 - self.uniform()
+        phi = 2.0 * math.pi * self.uniform()
+        r = math.sqrt(max(1.0 - z * z, 0.0))
+        return (r * math.cos(phi), r * math.sin(phi), z)
+
+
+def seeded_pairs(name: str, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``n`` light and view positions ``[1, n, 3]`` (float64) of protocol ``name``: the evaluation's
+    pairs, drawn exactly as nam-ggx's ``ProtocolSampler`` draws them (same stream, same order), so
+    ``train_py.evaluate`` and ``nam-cli report`` score the same images."""
+    rng = SplitMix64(seed)
+    lights, views = [], []
+    for _ in range(n):
+        if name == "identity":
+            light = view = (0.0, 0.0, CAPTURE_DISTANCE)
+        elif name == "hemisphere":
+            light = tuple(HEMISPHERE_RADIUS * c for c in rng.hemisphere())
+            view = tuple(HEMISPHERE_RADIUS * c for c in rng.hemisphere())
+        elif name == "reflect":
+            px = 2.0 * rng.uniform() - 1.0 + REFLECT_SIGMA * rng.normal()
+            py = 2.0 * rng.uniform() - 1.0 + REFLECT_SIGMA * rng.normal()
+            view = tuple(CAPTURE_DISTANCE * c for c in rng.hemisphere())
+            d = (view[0] - px, view[1] - py, view[2])
+            norm = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+            to_light = (-d[0] / norm, -d[1] / norm, d[2] / norm)
+            dist = abs(REFLECT_SIGMA * rng.normal()) + REFLECT_MIN_DIST
+            light = (px + to_light[0] * dist, py + to_light[1] * dist, to_light[2] * dist)
+        else:
+            raise ValueError(f"unknown protocol {name!r}")
+        lights.append(light)
+        views.append(view)
+    as_tensor = lambda v: torch.tensor(v, dtype=torch.float64).reshape(1, n, 3)  # noqa: E731
+    return as_tensor(lights), as_tensor(views)
 
 
 def sample(name: str, gen: torch.Generator, batch: int, k: int) -> tuple[torch.Tensor, torch.Tensor]:

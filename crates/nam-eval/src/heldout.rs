@@ -33,10 +33,10 @@ impl Material {
         self.maps.height()
     }
 
-    /// `n` light/view pairs of `protocol` for this material. Seeds follow `evaluate.py`
-    /// (`EVAL_SEED + seed mod 100000 + 17·protocol index`); the stream itself is nam-ggx's
-    /// PCG-64 sampler, not torch's, so the pairs are different draws from the same
-    /// distributions. The first `k` pairs of a longer list are the `k`-pair list.
+    /// `n` light/view pairs of `protocol` for this material: seed
+    /// `EVAL_SEED + seed mod 100000 + 17·protocol index`, nam-ggx's sampler — the pairs
+    /// `evaluate.py` draws (`protocols.seeded_pairs`; tests/eval_agreement.rs). The first `k`
+    /// pairs of a longer list are the `k`-pair list.
     pub fn pairs(&self, protocol: Protocol, n: usize) -> Vec<LightView> {
         let index = PROTOCOLS.iter().position(|p| *p == protocol).unwrap_or(0) as u64;
         let seed = EVAL_SEED + self.seed % 100_000 + 17 * index;

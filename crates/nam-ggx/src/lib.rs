@@ -42,6 +42,6 @@ pub use float::Float;
 pub use geometry::{CAPTURE_DISTANCE, Directions, Light, View};
 pub use imageio::RgbImage;
 pub use maps::{MapFiles, SvbrdfMaps};
-pub use protocol::{LightView, Protocol, ProtocolSampler, sample_protocol};
+pub use protocol::{LightView, Protocol, ProtocolSampler, SplitMix64, sample_protocol};
 pub use render::{RenderSettings, render};
 pub use vec3::{Vec3, Vec3d, Vec3f};

@@ -1,0 +1,55 @@
+"""The evaluation's one seeded definition of pairs and materials, shared with nam-eval."""
+
+import math
+
+import torch
+from safetensors.torch import load_file
+
+from train_py import eval_agreement, protocols
+from train_py.evaluate import box_downsample, heldout_sets
+
+
+def test_splitmix64_gives_the_published_sequence_and_uniforms_from_its_top_53_bits():
+    g = protocols.SplitMix64(0)
+    assert [g.next_u64() for _ in range(3)] == [0xE220A8397B1DCDAF, 0x6E789E6AA1B965F4, 0x06C45D188009454F]
+    assert protocols.SplitMix64(0).uniform() == (0xE220A8397B1DCDAF >> 11) / 2**53
+
+
+def test_seeded_pairs_follow_their_protocols_and_are_prefixes_of_longer_lists():
+    light, view = protocols.seeded_pairs("hemisphere", 500, 7)
+    assert torch.allclose(light.norm(dim=-1), torch.full((1, 500), protocols.HEMISPHERE_RADIUS, dtype=torch.float64))
+    assert float(view[..., 2].min()) > 0
+    short, _ = protocols.seeded_pairs("hemisphere", 10, 7)
+    assert torch.equal(short, light[:, :10])
+    light, view = protocols.seeded_pairs("reflect", 200, 3)
+    # The view and the light mirrored below the surface lie on one line through the highlight point.
+    mirrored = light * torch.tensor([1.0, 1.0, -1.0], dtype=torch.float64)
+    t = view[..., 2:] / (view[..., 2:] + light[..., 2:])
+    p = view + (mirrored - view) * t
+    assert float(p[..., 2].abs().max()) < 1e-9
+    assert float((light - p).norm(dim=-1).min()) >= protocols.REFLECT_MIN_DIST - 1e-9
+    cam = torch.tensor([0.0, 0.0, protocols.CAPTURE_DISTANCE], dtype=torch.float64)
+    light, view = protocols.seeded_pairs("identity", 2, 1)
+    assert torch.equal(light, cam.expand(1, 2, 3)) and torch.equal(view, light)
+
+
+def test_box_downsample_averages_linear_values_and_renormalises_normals():
+    maps = next(heldout_sets(1, None))[1]
+    half = box_downsample(maps, 32)
+    assert half["roughness"].shape == (1, 32, 32)
+    want = maps["diffuse"][0, :2, :2].mean(dim=(0, 1))
+    assert torch.allclose(half["diffuse"][0, 0, 0], want, atol=1e-6)
+    assert torch.allclose(half["normal"].norm(dim=-1), torch.ones(1, 32, 32), atol=1e-5)
+    assert math.isclose(float(half["roughness"][0, 0, 0]), float(maps["roughness"][0, :2, :2].mean()), rel_tol=1e-6)
+
+
+def test_the_agreement_fixture_is_what_the_generator_writes():
+    """The committed golden is reproducible (pairs exactly, scores to float noise)."""
+    stored = load_file(eval_agreement.OUT)
+    fresh = eval_agreement.compute()
+    assert stored.keys() == fresh.keys()
+    for k, v in fresh.items():
+        if k.startswith("pairs."):
+            assert torch.equal(stored[k], v), k
+        else:
+            assert torch.allclose(stored[k], v, atol=1e-6), k
