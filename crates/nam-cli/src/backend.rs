@@ -1,4 +1,5 @@
-//! Which model and where it runs: `--model`, `--backend auto|cpu|gpu`, `--f16`.
+//! Which model and where it runs: `--model`, `--backend auto|cpu|gpu`,
+//! `--precision f32|bf16|f16`.
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
@@ -17,6 +18,19 @@ pub enum Backend {
     Gpu,
 }
 
+/// The networks' arithmetic (every precision accumulates in f32). Named for what runs: the CPU
+/// fast path has bf16 products (AVX-512 BF16), the GPU f16 storage and products (SHADER_F16).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PrecisionArg {
+    /// f32 throughout (every backend).
+    F32,
+    /// bf16 products of the CPU fast path (needs AVX-512 BF16); `--backend auto` then stays on
+    /// the CPU.
+    Bf16,
+    /// f16 storage and products on the GPU (needs SHADER_F16).
+    F16,
+}
+
 /// Model selection shared by the subcommands that run the networks.
 #[derive(Debug, Clone, clap::Args)]
 pub struct ModelArgs {
@@ -26,10 +40,10 @@ pub struct ModelArgs {
     /// Where the networks run.
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
-    /// Reduced precision with f32 accumulation: f16 storage on the GPU (needs SHADER_F16),
-    /// bf16 products on the CPU (needs AVX-512 BF16). Falls back to f32 with a note.
-    #[arg(long)]
-    pub f16: bool,
+    /// Arithmetic of the networks: `bf16` runs on the CPU (AVX-512 BF16), `f16` on the GPU
+    /// (SHADER_F16); a precision the backend lacks falls back to f32 with a note.
+    #[arg(long, value_enum, default_value_t = PrecisionArg::F32)]
+    pub precision: PrecisionArg,
 }
 
 impl ModelArgs {
@@ -41,19 +55,31 @@ impl ModelArgs {
                 .with_context(|| format!("loading the model {}", p.display()))?,
             None => NeuralModel::embedded().context("loading the embedded model")?,
         };
-        if self.backend != Backend::Cpu && attach_gpu(&mut model, self)? {
+        let gpu_allowed = match (self.backend, self.precision) {
+            (Backend::Cpu, _) | (Backend::Auto, PrecisionArg::Bf16) => false,
+            (Backend::Gpu | Backend::Auto, _) => true,
+        };
+        if gpu_allowed && attach_gpu(&mut model, self)? {
             return Ok(model);
         }
-        let precision = if self.f16 {
-            match model.enable_cpu_bf16() {
+        let precision = match self.precision {
+            PrecisionArg::F32 => "f32",
+            PrecisionArg::Bf16 => match model.enable_cpu_bf16() {
                 Ok(()) => "bf16",
                 Err(e) => {
-                    eprintln!("note: --f16 ignored on this CPU ({e}); computing in f32");
+                    eprintln!(
+                        "note: --precision bf16 unavailable on this CPU ({e}); computing in f32"
+                    );
                     "f32"
                 }
+            },
+            PrecisionArg::F16 => {
+                eprintln!(
+                    "note: --precision f16 runs on a GPU only (the CPU has bf16: --precision bf16); \
+                     computing in f32"
+                );
+                "f32"
             }
-        } else {
-            "f32"
         };
         eprintln!("backend: CPU ({precision})");
         Ok(model)
@@ -64,7 +90,8 @@ impl ModelArgs {
 #[cfg(feature = "gpu")]
 fn attach_gpu(model: &mut NeuralModel, args: &ModelArgs) -> Result<bool> {
     use nam::nam_gpu::{Precision, request_device};
-    let Some(gpu) = request_device(args.f16) else {
+    let want_f16 = args.precision == PrecisionArg::F16;
+    let Some(gpu) = request_device(want_f16) else {
         if args.backend == Backend::Gpu {
             bail!("--backend gpu: no wgpu adapter (see the message above)");
         }
@@ -74,15 +101,20 @@ fn attach_gpu(model: &mut NeuralModel, args: &ModelArgs) -> Result<bool> {
     if args.backend == Backend::Auto && kind == nam::wgpu::DeviceType::Cpu {
         return Ok(false);
     }
-    let f16 = args.f16
+    let f16 = want_f16
         && gpu
             .device
             .features()
             .contains(nam::wgpu::Features::SHADER_F16);
-    if args.f16 && !f16 {
+    if want_f16 && !f16 {
         eprintln!(
-            "note: --f16 ignored: adapter {} lacks SHADER_F16",
+            "note: --precision f16 unavailable: adapter {} lacks SHADER_F16; computing in f32",
             gpu.info.name
+        );
+    }
+    if args.precision == PrecisionArg::Bf16 {
+        eprintln!(
+            "note: --precision bf16 runs on the CPU only (the GPU has f16); computing in f32"
         );
     }
     let precision = if f16 { Precision::F16 } else { Precision::F32 };

@@ -1,7 +1,7 @@
 //! `nam-cli`: the command-line front end of nam (DESIGN.md §1).
 //!
 //! One module per subcommand under `cmd/`; shared helpers: `args` (value parsers),
-//! `backend` (`--model`, `--backend`, `--f16`), `output` (atomic image writing),
+//! `backend` (`--model`, `--backend`, `--precision`), `output` (atomic image writing),
 //! `progress` (indicatif bars for long work), `sweep` (light sweeps, contact sheets, GIFs).
 
 mod args;

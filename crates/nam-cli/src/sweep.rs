@@ -134,8 +134,8 @@ pub fn contact_sheet(frames: &[RgbImage<f32>]) -> Result<RgbImage<f32>> {
     let cols = (frames.len() as f64).sqrt().ceil() as usize;
     let rows = frames.len().div_ceil(cols);
     let mut sheet = RgbImage::zeros(
-        cols * w + (cols - 1) * SHEET_GAP,
         rows * h + (rows - 1) * SHEET_GAP,
+        cols * w + (cols - 1) * SHEET_GAP,
     )?;
     for (k, frame) in frames.iter().enumerate() {
         let (r0, c0) = ((k / cols) * (h + SHEET_GAP), (k % cols) * (w + SHEET_GAP));
@@ -240,7 +240,7 @@ mod tests {
     #[test]
     fn contact_sheet_places_each_frame_in_its_cell() {
         let frames: Vec<_> = (0..5)
-            .map(|k| RgbImage::from_vec(3, 2, vec![k as f32 + 1.0; 18]).unwrap())
+            .map(|k| RgbImage::from_vec(2, 3, vec![k as f32 + 1.0; 18]).unwrap())
             .collect();
         let sheet = contact_sheet(&frames).unwrap();
         // 3 columns, 2 rows.

@@ -4,7 +4,7 @@
 use nam_ggx::imageio::read_rgb;
 mod common;
 
-use common::{expect_failure, ok, root, run, s, tmp};
+use common::{expect_failure, ok, root, run, s, stderr, tmp};
 use std::path::{Path, PathBuf};
 
 /// CPU and GPU (lavapipe) renders of the same photo agree to this relative error. The networks
@@ -22,6 +22,16 @@ fn small_photo(dir: &Path, side: u32) -> PathBuf {
     let path = dir.join(format!("photo{side}.png"));
     img.save(&path).unwrap_or_else(|e| panic!("{e}"));
     path
+}
+
+/// A 256² 8-bit image whose mean code is neither black nor white.
+fn assert_plausible_relight(path: &Path) {
+    let img = image::open(path)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .to_rgb8();
+    assert_eq!(img.dimensions(), (256, 256));
+    let mean = img.as_raw().iter().map(|&v| f64::from(v)).sum::<f64>() / img.as_raw().len() as f64;
+    assert!(mean > 5.0 && mean < 250.0, "implausible mean code {mean}");
 }
 
 fn read_exr(path: &Path) -> Vec<f32> {
@@ -58,12 +68,7 @@ fn readme_command_relights_the_bundled_photo() {
         !err.contains("error"),
         "a successful run printed errors: {err}"
     );
-    let img = image::open(&out)
-        .unwrap_or_else(|e| panic!("{e}"))
-        .to_rgb8();
-    assert_eq!(img.dimensions(), (256, 256));
-    let mean = img.as_raw().iter().map(|&v| f64::from(v)).sum::<f64>() / img.as_raw().len() as f64;
-    assert!(mean > 5.0 && mean < 250.0, "implausible mean code {mean}");
+    assert_plausible_relight(&out);
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;
@@ -495,12 +500,7 @@ fn relight_with_fov_45_runs_on_the_example_photo() {
         &light,
     ]
     .concat());
-    let img = image::open(&out)
-        .unwrap_or_else(|e| panic!("{e}"))
-        .to_rgb8();
-    assert_eq!(img.dimensions(), (256, 256));
-    let mean = img.as_raw().iter().map(|&v| f64::from(v)).sum::<f64>() / img.as_raw().len() as f64;
-    assert!(mean > 5.0 && mean < 250.0, "implausible mean code {mean}");
+    assert_plausible_relight(&out);
 }
 
 #[test]
@@ -549,4 +549,50 @@ fn help_documents_fov() {
             "{cmd}: {help}"
         );
     }
+}
+
+#[test]
+fn precision_names_what_runs_and_falls_back_to_f32_with_a_note() {
+    let dir = tmp();
+    let photo = small_photo(dir.path(), 16);
+    let relight = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let args = [
+            &["relight", s(&photo), "--light", "1,0,3", "-o", s(&out)][..],
+            extra,
+        ]
+        .concat();
+        let o = run(&args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        (stderr(&o), read_exr(&out))
+    };
+    let (err, f32_cpu) = relight("f32.exr", &["--backend", "cpu", "--precision", "f32"]);
+    assert!(err.contains("backend: CPU (f32)"), "{err}");
+    // f16 is the GPU's: on the CPU it falls back to f32, the same numbers, with a note.
+    let (err, f16_cpu) = relight("f16.exr", &["--backend", "cpu", "--precision", "f16"]);
+    assert!(
+        err.contains("--precision f16 runs on a GPU only") && err.contains("backend: CPU (f32)"),
+        "{err}"
+    );
+    assert_eq!(f16_cpu, f32_cpu);
+    // bf16 keeps `auto` on the CPU: bf16 where the CPU has AVX-512 BF16, else f32 with a note.
+    let (err, bf16) = relight("bf16.exr", &["--precision", "bf16"]);
+    assert!(
+        err.contains("backend: CPU (bf16)") || err.contains("unavailable on this CPU"),
+        "{err}"
+    );
+    assert!(bf16.iter().all(|v| v.is_finite()));
+    // The old flag, which meant bf16 on the CPU, is gone rather than misleading.
+    let o = run(&[
+        "relight",
+        s(&photo),
+        "--f16",
+        "-o",
+        s(&dir.path().join("x.exr")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("--f16"),
+        "{}",
+        stderr(&o)
+    );
 }

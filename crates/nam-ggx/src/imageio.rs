@@ -19,8 +19,8 @@ pub struct RgbImage<T> {
 }
 
 impl<T: Float> RgbImage<T> {
-    /// A black image. Errors if either side is 0.
-    pub fn zeros(width: usize, height: usize) -> Result<Self> {
+    /// A black `height`×`width` image. Errors if either side is 0.
+    pub fn zeros(height: usize, width: usize) -> Result<Self> {
         if width == 0 || height == 0 {
             return Err(GgxError::Empty { what: "image" });
         }
@@ -32,7 +32,7 @@ impl<T: Float> RgbImage<T> {
     }
 
     /// Wraps data whose size the caller computed from a valid non-empty size.
-    pub(crate) fn from_parts(width: usize, height: usize, data: Vec<T>) -> Self {
+    pub(crate) fn from_parts(height: usize, width: usize, data: Vec<T>) -> Self {
         debug_assert!(width > 0 && height > 0 && data.len() == width * height * 3);
         Self {
             width,
@@ -41,8 +41,9 @@ impl<T: Float> RgbImage<T> {
         }
     }
 
-    /// Wraps interleaved RGB data; errors if empty or if `data.len() != width·height·3`.
-    pub fn from_vec(width: usize, height: usize, data: Vec<T>) -> Result<Self> {
+    /// Wraps `height`×`width` interleaved RGB data; errors if empty or if
+    /// `data.len() != height·width·3`.
+    pub fn from_vec(height: usize, width: usize, data: Vec<T>) -> Result<Self> {
         if width == 0 || height == 0 {
             return Err(GgxError::Empty { what: "image" });
         }
@@ -181,7 +182,8 @@ pub fn decode_rgb(bytes: &[u8], kind: FileKind, label: &Path) -> Result<RgbImage
         path: label.to_path_buf(),
         reason,
     })?;
-    let img = RgbImage::from_vec(img.0, img.1, img.2).map_err(|e| e.in_file(label))?;
+    let (width, height, data) = img;
+    let img = RgbImage::from_vec(height, width, data).map_err(|e| e.in_file(label))?;
     if let Some((row, col)) = img.first_non_finite() {
         return Err(GgxError::NonFinite {
             what: "image",

@@ -243,7 +243,7 @@ impl SvbrdfMaps {
                 }
             }
         }
-        RgbImage::from_parts(4 * w, h, data)
+        RgbImage::from_parts(h, 4 * w, data)
     }
 
     /// Loads a 4-panel SVBRDF file (`.png`, `.jpg`, `.jpeg` or `.exr`).
@@ -305,7 +305,7 @@ impl SvbrdfMaps {
         let (h, w) = (self.height, self.width);
         let to_img = |f: &dyn Fn(usize) -> [f32; 3]| {
             let data = (0..h * w).flat_map(f).collect();
-            RgbImage::from_vec(w, h, data)
+            RgbImage::from_vec(h, w, data)
         };
         let kd = FileKind::of(&files.diffuse)?;
         let ks = FileKind::of(&files.specular)?;

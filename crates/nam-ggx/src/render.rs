@@ -93,7 +93,7 @@ pub fn render_with_progress<T: Float>(
 ) -> Result<RgbImage<T>> {
     settings.validate()?;
     let (h, w) = (maps.height(), maps.width());
-    let mut img = RgbImage::<T>::zeros(w, h)?;
+    let mut img = RgbImage::<T>::zeros(h, w)?;
     img.data_mut()
         .par_chunks_mut(w * 3)
         .enumerate()

@@ -130,8 +130,8 @@ fn jpeg_seeds() -> Vec<Vec<u8>> {
 fn exr_seeds() -> Vec<Vec<u8>> {
     use exr::prelude::*;
     let img = RgbImage::from_vec(
-        6,
         4,
+        6,
         (0..72).map(|k| (k as f32 * 0.37).sin() * 100.0).collect(),
     )
     .expect("seed image");

@@ -127,7 +127,7 @@ fn separate_map_files_round_trip_with_mixed_formats() {
 fn png_normal_128_128_255_decodes_to_a_unit_normal_near_z() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let path = dir.path().join("flat.png");
-    let mut img = RgbImage::<f32>::zeros(8, 2).unwrap_or_else(|e| panic!("{e}"));
+    let mut img = RgbImage::<f32>::zeros(2, 8).unwrap_or_else(|e| panic!("{e}"));
     for i in 0..2 {
         for j in 6..8 {
             img.set_pixel(i, j, [128.0 / 255.0, 128.0 / 255.0, 1.0]);
@@ -146,7 +146,7 @@ fn png_normal_128_128_255_decodes_to_a_unit_normal_near_z() {
 fn wrong_panel_width_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let path = dir.path().join("wide.png");
-    let img = RgbImage::<f32>::zeros(30, 8).unwrap_or_else(|e| panic!("{e}"));
+    let img = RgbImage::<f32>::zeros(8, 30).unwrap_or_else(|e| panic!("{e}"));
     let bytes = encode_png(&img, PngDepth::Eight).unwrap_or_else(|e| panic!("{e}"));
     std::fs::write(&path, bytes).unwrap_or_else(|e| panic!("{e}"));
     let e = load_err(&path);
@@ -191,7 +191,7 @@ fn missing_file_and_unknown_extension_are_reported_with_the_path() {
 }
 
 fn write_exr_panel(path: &Path, h: usize, poke: impl Fn(&mut RgbImage<f32>)) {
-    let mut img = RgbImage::<f32>::zeros(4 * h, h).unwrap_or_else(|e| panic!("{e}"));
+    let mut img = RgbImage::<f32>::zeros(h, 4 * h).unwrap_or_else(|e| panic!("{e}"));
     for i in 0..h {
         for j in 0..h {
             img.set_pixel(i, 3 * h + j, [0.5, 0.5, 1.0]);

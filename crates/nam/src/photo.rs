@@ -32,28 +32,29 @@ impl Photo {
     /// The image must be square (see [`Photo::from_linear_rgb`]); use
     /// [`Photo::load_cropped`] to accept any aspect ratio.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
-        let (w, h, rgb) = read_linear(path.as_ref())?;
-        Self::from_linear_rgb(w, h, rgb).map_err(|e| e.in_file(path.as_ref()))
+        let (h, w, rgb) = read_linear(path.as_ref())?;
+        Self::from_linear_rgb(h, w, rgb).map_err(|e| e.in_file(path.as_ref()))
     }
 
     /// Like [`Photo::load`], but centre-crops a non-square image to its shorter side first.
     pub fn load_cropped(path: impl AsRef<Path>) -> Result<Self> {
-        let (w, h, rgb) = read_linear(path.as_ref())?;
-        let (w, h, rgb) = center_crop(w, h, rgb);
-        Self::from_linear_rgb(w, h, rgb).map_err(|e| e.in_file(path.as_ref()))
+        let (h, w, rgb) = read_linear(path.as_ref())?;
+        let (h, w, rgb) = center_crop(h, w, rgb);
+        Self::from_linear_rgb(h, w, rgb).map_err(|e| e.in_file(path.as_ref()))
     }
 
-    /// Wraps linear RGB values (`rgb.len() == 3·width·height`). Errors on a non-square or
+    /// Wraps `height`×`width` linear RGB values, row-major and interleaved
+    /// (`rgb.len() == height·width·3`; sizes are (height, width) throughout nam). Errors on a non-square or
     /// empty image, a side above [`MAX_PHOTO_SIDE`], or any NaN/Inf value. Negative values
     /// (noise in HDR files) are kept; the network input clamps them to 0. The field of view
     /// is the training geometry's, 28° ([`Photo::with_fov`] declares another).
-    pub fn from_linear_rgb(width: usize, height: usize, rgb: Vec<f32>) -> Result<Self> {
+    pub fn from_linear_rgb(height: usize, width: usize, rgb: Vec<f32>) -> Result<Self> {
         if width == 0 || height == 0 {
             return Err(NamError::Photo("the photo has no pixels".into()));
         }
         if width != height {
             return Err(NamError::Photo(format!(
-                "the photo is {width}×{height} (W×H) but must be square: the material spans \
+                "the photo is {width} px wide and {height} px high but must be square: the material spans \
                  [−1,1]² seen from the capture position (crop it, e.g. `--crop` in nam-cli)"
             )));
         }
@@ -173,20 +174,21 @@ impl Photo {
     }
 }
 
-/// Reads any supported image as linear RGB: LDR files are sRGB-decoded.
+/// Reads any supported image as linear RGB `(height, width, rgb)`: LDR files are sRGB-decoded.
 fn read_linear(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
     let (img, kind) = read_rgb(path)?;
-    let (w, h) = (img.width(), img.height());
+    let (h, w) = (img.height(), img.width());
     let mut rgb = img.into_vec();
     if kind == FileKind::Ldr {
         rgb.iter_mut().for_each(|v| *v = srgb_decode(*v));
     }
-    Ok((w, h, rgb))
+    Ok((h, w, rgb))
 }
 
-fn center_crop(w: usize, h: usize, rgb: Vec<f32>) -> (usize, usize, Vec<f32>) {
+/// The centred square of side `min(h, w)`: `(side, side, rgb)`.
+fn center_crop(h: usize, w: usize, rgb: Vec<f32>) -> (usize, usize, Vec<f32>) {
     if w == h {
-        return (w, h, rgb);
+        return (h, w, rgb);
     }
     let s = w.min(h);
     let (x0, y0) = ((w - s) / 2, (h - s) / 2);
@@ -203,10 +205,14 @@ mod tests {
 
     #[test]
     fn non_square_photo_is_rejected_and_crop_makes_it_square() {
-        let err = Photo::from_linear_rgb(4, 2, vec![0.5; 24]).unwrap_err();
-        assert!(err.to_string().contains("must be square"), "{err}");
-        let (w, h, rgb) = center_crop(4, 2, (0..24).map(|v| v as f32).collect());
-        assert_eq!((w, h), (2, 2));
+        let err = Photo::from_linear_rgb(2, 4, vec![0.5; 24]).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("4 px wide and 2 px high but must be square"),
+            "{err}"
+        );
+        let (h, w, rgb) = center_crop(2, 4, (0..24).map(|v| v as f32).collect());
+        assert_eq!((h, w), (2, 2));
         // Columns 1..3 of both rows.
         assert_eq!(rgb[0], 3.0);
         assert_eq!(rgb[6], 15.0);

@@ -64,7 +64,7 @@ pub fn relight_roi(
             roi.height, roi.width, roi.row, roi.col
         )));
     }
-    let mut img = RgbImage::zeros(roi.width, roi.height)?;
+    let mut img = RgbImage::zeros(roi.height, roi.width)?;
     // One route for both backends: the scene in the networks' f32, whose per-pixel
     // directions both compute with `Directions::at`.
     let (light, view): (Source, Source) = (scene.light.source(), scene.view.source());

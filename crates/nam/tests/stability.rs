@@ -176,7 +176,7 @@ fn non_finite_empty_non_square_and_oversized_photos_are_errors() {
     }
     let err = Photo::from_linear_rgb(0, 0, Vec::new()).unwrap_err();
     assert!(err.to_string().contains("no pixels"), "{err}");
-    let err = Photo::from_linear_rgb(8, 7, vec![0.5; 8 * 7 * 3]).unwrap_err();
+    let err = Photo::from_linear_rgb(7, 8, vec![0.5; 8 * 7 * 3]).unwrap_err();
     assert!(err.to_string().contains("must be square"), "{err}");
     let err = Photo::from_linear_rgb(7, 7, vec![0.5; 7 * 7 * 3 - 1]).unwrap_err();
     assert!(err.to_string().contains("expected 147 RGB values"), "{err}");
