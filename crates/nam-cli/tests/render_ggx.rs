@@ -2,7 +2,7 @@
 
 use nam_ggx::color::srgb_encode;
 use nam_ggx::imageio::read_rgb;
-use nam_ggx::{GgxPoint, Light, RenderSettings, SvbrdfMaps, Vec3, View, render};
+use nam_ggx::{DVec3, GgxPoint, Light, RenderSettings, SvbrdfMaps, Vec3, View, render};
 mod common;
 
 use common::{expect_failure, ok, run, s, stderr, tmp};
@@ -67,8 +67,8 @@ fn exr_output_is_the_linear_f32_library_render() {
     ok(&ggx_args(&maps_path, "-1.5,0.5,3", "0.2,0,4", &out, &[]));
     let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
     let settings = RenderSettings::new(
-        Light::Point(Vec3::new(-1.5, 0.5, 3.0)),
-        View::Point(Vec3::new(0.2, 0.0, 4.0)),
+        Light::Point(DVec3::new(-1.5, 0.5, 3.0)),
+        View::Point(DVec3::new(0.2, 0.0, 4.0)),
     );
     let want = render::<f32>(&maps, &settings).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(
@@ -86,7 +86,7 @@ fn png_output_is_srgb_encoded_clamped_radiance() {
     let (pos, extra) = ("0,0,4.0108", ["--intensity", "3"]);
     ok(&ggx_args(&maps_path, pos, pos, &out, &extra));
     let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
-    let cam = Vec3::new(0.0, 0.0, 4.0108);
+    let cam = DVec3::new(0.0, 0.0, 4.0108);
     let settings = RenderSettings {
         intensity: 3.0,
         ..RenderSettings::new(Light::Point(cam), View::Point(cam))

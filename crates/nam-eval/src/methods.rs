@@ -7,7 +7,7 @@
 use crate::error::{EvalError, Result};
 use crate::heldout::Material;
 use nam::geometry::{CAPTURE_DISTANCE, Light, View, capture_half_z, pixel_position};
-use nam::{NeuralMaterial, NeuralModel, Photo, Scene, relight};
+use nam::{DVec3, NeuralMaterial, NeuralModel, Photo, Scene, relight};
 use nam_ggx::{LightView, SvbrdfMaps, render};
 use nam_model::reference::{self, Accumulate};
 use nam_model::{ParamMap, RenderNet, Source};
@@ -324,7 +324,7 @@ impl Prepared {
     /// Relights an estimate for one light/view pair: linear RGB, HWC.
     pub fn relight(&self, est: &Estimate, side: usize, lv: &LightView) -> Result<Vec<f32>> {
         let scene = Scene::new(Light::Point(lv.light), View::Point(lv.view));
-        let to32 = |v: nam::Vec3d| [v.x as f32, v.y as f32, v.z as f32];
+        let to32 = |v: DVec3| v.as_vec3().to_array();
         match est {
             Estimate::Photo(p) => Ok(p.clone()),
             Estimate::Albedo(a) => {
@@ -353,8 +353,8 @@ impl Prepared {
                 if directional {
                     // The point light and viewer seen from the origin, as a directional light
                     // and an orthographic view: the facade's constant-direction plan.
-                    let wi = lv.light.try_normalize().unwrap_or_else(nam::Vec3d::up);
-                    let wo = lv.view.try_normalize().unwrap_or_else(nam::Vec3d::up);
+                    let wi = lv.light.try_normalize().unwrap_or(DVec3::Z);
+                    let wo = lv.view.try_normalize().unwrap_or(DVec3::Z);
                     if self.bf16.is_some() {
                         let rgb = net.relight_directional(mat.params(), to32(wi), to32(wo))?;
                         return Ok(rgb.data);

@@ -10,6 +10,7 @@
 
 use crate::float::Float;
 use crate::vec3::{Vec3, Vec3d};
+use glam::DVec3;
 use std::ops::RangeInclusive;
 
 /// Field of view of the paper's capture camera (its training geometry), degrees.
@@ -39,8 +40,8 @@ pub fn capture_distance(fov_deg: f64) -> f64 {
 
 /// The capture position (0, 0, `distance`): where the input photo's camera and flash are.
 #[inline]
-pub fn capture_position(distance: f64) -> Vec3d {
-    Vec3::new(0.0, 0.0, distance)
+pub fn capture_position(distance: f64) -> DVec3 {
+    DVec3::new(0.0, 0.0, distance)
 }
 
 /// Surface position of the centre of pixel (row `i`, col `j`) of an `height`×`width` image:
@@ -156,22 +157,22 @@ impl<T: Float> Source<T> {
     }
 }
 
-/// Where the light comes from.
+/// Where the light comes from (glam's `DVec3`, surface frame, material half-widths).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Light {
-    /// A point light at this position (surface frame, material half-widths).
-    Point(Vec3d),
+    /// A point light at this position.
+    Point(DVec3),
     /// A directional light; the vector points *towards* the light (need not be unit).
-    Directional(Vec3d),
+    Directional(DVec3),
 }
 
 /// Where the surface is seen from.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum View {
     /// A perspective (pinhole) viewer at this position (surface frame, material half-widths).
-    Point(Vec3d),
+    Point(DVec3),
     /// An orthographic viewer; the vector points *towards* the viewer (need not be unit).
-    Orthographic(Vec3d),
+    Orthographic(DVec3),
 }
 
 impl Light {
@@ -200,7 +201,7 @@ impl Light {
     pub fn falloff_at(&self, p: Vec3d) -> f64 {
         match *self {
             Light::Point(pos) => {
-                let r = pos - p;
+                let r = Vec3d::from(pos) - p;
                 let r2 = r.dot(r);
                 if r2 > 0.0 {
                     CAPTURE_DISTANCE * CAPTURE_DISTANCE / r2
@@ -380,7 +381,7 @@ mod tests {
 
     #[test]
     fn directional_light_gives_the_same_direction_everywhere() {
-        let light = Light::Directional(Vec3::new(1.0, 0.0, 1.0));
+        let light = Light::Directional(DVec3::new(1.0, 0.0, 1.0));
         let a = light.direction_from(pixel_position(0, 0, 4, 4));
         let b = light.direction_from(pixel_position(3, 3, 4, 4));
         assert_eq!(a, b);
@@ -394,7 +395,7 @@ mod tests {
         let l2 = Light::Point(capture_position(CAPTURE_DISTANCE) * 2.0);
         assert!((l1.falloff_at(p) - 1.0).abs() < TIGHT);
         assert!((l2.falloff_at(p) - 0.25).abs() < TIGHT);
-        assert_eq!(Light::Point(p).falloff_at(p), 0.0);
+        assert_eq!(Light::Point(p.into()).falloff_at(p), 0.0);
     }
 
     #[test]
@@ -412,7 +413,7 @@ mod tests {
     fn f64_directions_follow_the_f32_network_rules() {
         let p = Vec3::new(0.25, -0.5, 0.0);
         // An f64 |v|² overflows beyond ~1.3e154: the direction is kept, as in f32.
-        let far = Light::Point(Vec3::new(1e200, 0.0, 1e200)).direction_from(p);
+        let far = Light::Point(DVec3::new(1e200, 0.0, 1e200)).direction_from(p);
         let r = 1.0 / 2f64.sqrt();
         assert!(far.is_some_and(|d| (d.x - r).abs() < TIGHT && (d.z - r).abs() < TIGHT));
         // Closer than 1e-6 to the pixel is degenerate in both precisions.
@@ -420,7 +421,7 @@ mod tests {
         assert_eq!(near.try_direction_from(p), None);
         assert_eq!(near.cast::<f32>().direction_from(p.cast()), Vec3::up());
         assert_eq!(
-            Light::Directional(Vec3::new(1e-7, 0.0, 0.0)).direction_from(p),
+            Light::Directional(DVec3::new(1e-7, 0.0, 0.0)).direction_from(p),
             None
         );
         // Division, not a reciprocal: 5/√27 rounds like torch's `v / norm` (5·(1/√27) does
@@ -457,8 +458,8 @@ mod tests {
         for k in 0..h * w {
             let p = pixel_position(k / w, k % w, h, w);
             let want = directions_at(
-                &Light::Point(Vec3::from_array(l)),
-                &View::Point(Vec3::from_array(v)),
+                &Light::Point(DVec3::from_array(l)),
+                &View::Point(DVec3::from_array(v)),
                 p,
             );
             let Some(want) = want else {

@@ -40,6 +40,8 @@ pub use brdf::{GgxPoint, eval};
 pub use error::{GgxError, Result};
 pub use float::Float;
 pub use geometry::{CAPTURE_DISTANCE, Directions, Light, View};
+/// The scene vector type: light and viewer positions and directions ([`Light`], [`View`], [`LightView`]).
+pub use glam::DVec3;
 pub use imageio::RgbImage;
 pub use maps::{MapFiles, SvbrdfMaps};
 pub use protocol::{LightView, Protocol, ProtocolSampler, SplitMix64, sample_protocol};

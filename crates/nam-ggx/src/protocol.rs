@@ -9,6 +9,7 @@
 
 use crate::geometry::{CAPTURE_DISTANCE, capture_position, direction};
 use crate::vec3::{Vec3, Vec3d};
+use glam::DVec3;
 
 /// Radius of the hemisphere of the Hemisphere protocol (paper §4: 4.0).
 pub const HEMISPHERE_RADIUS: f64 = 4.0;
@@ -23,9 +24,9 @@ pub const REFLECT_MIN_LIGHT_DISTANCE: f64 = 0.5;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LightView {
     /// Point-light position.
-    pub light: Vec3d,
+    pub light: DVec3,
     /// Viewer position.
-    pub view: Vec3d,
+    pub view: DVec3,
 }
 
 /// Which protocol to sample.
@@ -123,7 +124,10 @@ impl ProtocolSampler {
             Protocol::Hemisphere => {
                 let light = uniform_hemisphere(&mut self.rng) * HEMISPHERE_RADIUS;
                 let view = uniform_hemisphere(&mut self.rng) * HEMISPHERE_RADIUS;
-                LightView { light, view }
+                LightView {
+                    light: light.into(),
+                    view: view.into(),
+                }
             }
             Protocol::Reflect => self.sample_reflect(),
         }
@@ -145,8 +149,8 @@ impl ProtocolSampler {
         let to_light = Vec3::new(-to_view.x, -to_view.y, to_view.z);
         let dist = (REFLECT_SIGMA * std_normal(rng)).abs() + REFLECT_MIN_LIGHT_DISTANCE;
         LightView {
-            light: p + to_light * dist,
-            view,
+            light: (p + to_light * dist).into(),
+            view: view.into(),
         }
     }
 }
@@ -201,7 +205,7 @@ mod tests {
     fn identity_is_colocated_at_capture_distance() {
         for lv in sample_protocol(Protocol::Identity, 3, 1) {
             assert_eq!(lv.light, lv.view);
-            assert_eq!(lv.light, Vec3::new(0.0, 0.0, CAPTURE_DISTANCE));
+            assert_eq!(lv.light, DVec3::new(0.0, 0.0, CAPTURE_DISTANCE));
         }
     }
 
@@ -228,14 +232,14 @@ mod tests {
             // direction: the view and the mirrored light are on one line through p.
             let (l, v) = (lv.light, lv.view);
             assert!(l.z > 0.0 && v.z > 0.0);
-            let mirrored = Vec3::new(l.x, l.y, -l.z);
+            let mirrored = DVec3::new(l.x, l.y, -l.z);
             let t = v.z / (v.z + l.z);
             let p = v + (mirrored - v) * t;
             assert!(p.z.abs() < 1e-9);
             let dist = (l - p).length();
             assert!(dist >= REFLECT_MIN_LIGHT_DISTANCE - 1e-9, "{dist}");
-            let to_v = (v - p).try_normalize().unwrap_or_else(Vec3::up);
-            let to_l = (l - p).try_normalize().unwrap_or_else(Vec3::up);
+            let to_v = (v - p).try_normalize().unwrap_or(DVec3::Z);
+            let to_l = (l - p).try_normalize().unwrap_or(DVec3::Z);
             assert!((to_l.x + to_v.x).abs() < 1e-9 && (to_l.y + to_v.y).abs() < 1e-9);
             assert!((to_l.z - to_v.z).abs() < 1e-9);
             assert!((v.length() - CAPTURE_DISTANCE).abs() < 1e-9);
@@ -250,7 +254,7 @@ mod tests {
         let mut sum2 = 0.0;
         for lv in sample_protocol(Protocol::Reflect, n, 5) {
             let (l, v) = (lv.light, lv.view);
-            let mirrored = Vec3::new(l.x, l.y, -l.z);
+            let mirrored = DVec3::new(l.x, l.y, -l.z);
             let p = v + (mirrored - v) * (v.z / (v.z + l.z));
             sum += p.x;
             sum2 += p.x * p.x;

@@ -121,6 +121,7 @@ mod tests {
     use crate::brdf::GgxPoint;
     use crate::geometry::{CAPTURE_DISTANCE, capture_position};
     use crate::vec3::Vec3;
+    use glam::DVec3;
 
     fn grey(roughness: f32) -> SvbrdfMaps {
         let p = GgxPoint {
@@ -178,12 +179,12 @@ mod tests {
                 ..RenderSettings::new(Light::Point(cam), View::Point(cam))
             },
             RenderSettings::new(
-                Light::Directional(Vec3::new(0.0, 0.0, 0.0)),
+                Light::Directional(DVec3::new(0.0, 0.0, 0.0)),
                 View::Point(cam),
             ),
             RenderSettings::new(
                 Light::Point(cam),
-                View::Point(Vec3::new(f64::INFINITY, 0., 1.)),
+                View::Point(DVec3::new(f64::INFINITY, 0., 1.)),
             ),
         ];
         for s in bad {
@@ -200,13 +201,13 @@ mod tests {
     fn directional_vectors_shorter_than_the_guard_are_rejected() {
         let cam = capture_position(CAPTURE_DISTANCE);
         let tiny = RenderSettings::new(
-            Light::Directional(Vec3::new(1e-7, 0.0, 1e-7)),
+            Light::Directional(DVec3::new(1e-7, 0.0, 1e-7)),
             View::Point(cam),
         );
         assert!(matches!(tiny.validate(), Err(GgxError::InvalidArgument(_))));
         let short_but_fine = RenderSettings::new(
             Light::Point(cam),
-            View::Orthographic(Vec3::new(0.0, 0.0, 1e-5)),
+            View::Orthographic(DVec3::new(0.0, 0.0, 1e-5)),
         );
         assert!(short_but_fine.validate().is_ok());
     }

@@ -1,4 +1,6 @@
-//! A small 3-vector generic over [`Float`], used for directions and positions.
+//! A small 3-vector generic over [`Float`]: the math type of the generic (f32/f64) kernels.
+//! Scenes are given in glam's `DVec3` ([`crate::geometry::Light`], [`crate::LightView`]),
+//! which converts to and from [`Vec3d`] losslessly.
 
 use crate::float::Float;
 use std::ops::{Add, Mul, Neg, Sub};
@@ -142,5 +144,19 @@ impl<T: Float> From<[T; 3]> for Vec3<T> {
     #[inline]
     fn from(a: [T; 3]) -> Self {
         Self::from_array(a)
+    }
+}
+
+impl From<glam::DVec3> for Vec3<f64> {
+    #[inline]
+    fn from(v: glam::DVec3) -> Self {
+        Self::new(v.x, v.y, v.z)
+    }
+}
+
+impl From<Vec3<f64>> for glam::DVec3 {
+    #[inline]
+    fn from(v: Vec3<f64>) -> Self {
+        glam::DVec3::new(v.x, v.y, v.z)
     }
 }

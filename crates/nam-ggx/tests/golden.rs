@@ -3,7 +3,7 @@
 //! format in docs/FORMAT.md).
 
 use nam_ggx::geometry::{Light, View, directions_at, pixel_position};
-use nam_ggx::{GgxPoint, Vec3, eval};
+use nam_ggx::{DVec3, GgxPoint, Vec3, eval};
 use safetensors::{Dtype, SafeTensors};
 use std::path::PathBuf;
 
@@ -172,8 +172,8 @@ fn pixel_geometry_matches_torch_golden_on_5x7_image() {
     let (h, w) = (5, 7);
     let light = g.get("geom_light", &[3]);
     let view = g.get("geom_view", &[3]);
-    let light = Light::Point(Vec3::new(light[0], light[1], light[2]));
-    let view = View::Point(Vec3::new(view[0], view[1], view[2]));
+    let light = Light::Point(DVec3::new(light[0], light[1], light[2]));
+    let view = View::Point(DVec3::new(view[0], view[1], view[2]));
     let gwi = g.get("geom_wi", &[h, w, 3]);
     let gwo = g.get("geom_wo", &[h, w, 3]);
     let gwh = g.get("geom_wh", &[h, w, 3]);

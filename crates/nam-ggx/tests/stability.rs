@@ -5,7 +5,7 @@
 //! grid lives in `extreme.rs`; this file drives `render`, its geometry and falloff.
 
 use nam_ggx::geometry::{Light, View, pixel_position};
-use nam_ggx::{GgxPoint, RenderSettings, SvbrdfMaps, Vec3, Vec3d, render};
+use nam_ggx::{DVec3, GgxPoint, RenderSettings, SvbrdfMaps, Vec3, render};
 
 const D: f64 = nam_ggx::CAPTURE_DISTANCE;
 
@@ -15,8 +15,8 @@ const D: f64 = nam_ggx::CAPTURE_DISTANCE;
 /// error is the BRDF's own f32 rounding (extreme.rs bounds it pointwise at 1e-4).
 const F32_VS_F64_REL_TOL: f64 = 1e-4;
 
-fn v(x: f64, y: f64, z: f64) -> Vec3d {
-    Vec3d::from_array([x, y, z])
+fn v(x: f64, y: f64, z: f64) -> DVec3 {
+    DVec3::new(x, y, z)
 }
 
 /// A map whose roughness, albedo and normal vary per pixel, covering roughness 0 and 1,
@@ -49,7 +49,7 @@ fn flat(side: usize, roughness: f32) -> SvbrdfMaps {
     SvbrdfMaps::uniform(side, side, &p).expect("uniform maps")
 }
 
-fn at_angle(theta_deg: f64, dist: f64) -> Vec3d {
+fn at_angle(theta_deg: f64, dist: f64) -> DVec3 {
     let t = theta_deg.to_radians();
     v(dist * t.sin(), 0.0, dist * t.cos())
 }
@@ -176,7 +176,7 @@ fn below_or_on_the_horizon_renders_exactly_black_on_flat_maps() {
         ),
         (
             "light on a pixel centre",
-            Light::Point(centre),
+            Light::Point(centre.into()),
             View::Point(cam),
         ),
         (
@@ -187,7 +187,7 @@ fn below_or_on_the_horizon_renders_exactly_black_on_flat_maps() {
         (
             "view on a pixel centre",
             Light::Point(cam),
-            View::Point(centre),
+            View::Point(centre.into()),
         ),
         (
             "directional below",

@@ -6,14 +6,14 @@
 //! From Single Images*). This crate is the embedding API; `nam-cli` is the command line.
 //!
 //! ```
-//! use nam::{NeuralModel, Photo, Scene, Vec3d, relight};
+//! use nam::{DVec3, NeuralModel, Photo, Scene, relight};
 //! use nam::geometry::{Light, View};
 //! # fn main() -> Result<(), nam::NamError> {
 //! let model = NeuralModel::embedded()?;                  // or NeuralModel::from_file(..)
 //! // A 16×16 grey photo as linear RGB (normally: Photo::load("photo.png")?).
 //! let photo = Photo::from_linear_rgb(16, 16, vec![0.3; 16 * 16 * 3])?;
 //! let material = model.estimate(&photo)?;               // runs the U-Net once
-//! let (light, view) = (Vec3d::from_array([1.0, 1.0, 4.0]), Vec3d::from_array([0.0, 0.0, 4.0]));
+//! let (light, view) = (DVec3::new(1.0, 1.0, 4.0), DVec3::new(0.0, 0.0, 4.0));
 //! let scene = Scene::new(Light::Point(light), View::Point(view));
 //! let image = relight(&model, &material, &scene)?;      // any number of times
 //! assert_eq!((image.width(), image.height()), (16, 16));
@@ -55,9 +55,12 @@ pub use photo::{MAX_PHOTO_SIDE, Photo};
 pub use relight::{Scene, relight, relight_roi};
 pub use sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere};
 
+/// The vector types of the API, from glam: `DVec3` for scene positions and directions
+/// ([`Scene`], [`geometry::Light`]), `Vec3`/`Vec2` for the renderer-side BRDF queries.
+pub use glam::{self, DVec3, Vec2, Vec3};
+pub use nam_ggx::RgbImage;
 /// Scene geometry, the one home of the surface frame (re-exported from `nam-ggx`).
 pub use nam_ggx::geometry;
-pub use nam_ggx::{RgbImage, Vec3d};
 /// The GPU backend (re-exported from `nam-gpu`).
 #[cfg(feature = "gpu")]
 pub use nam_gpu;

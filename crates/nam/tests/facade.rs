@@ -3,8 +3,8 @@
 use glam::{Vec2, Vec3};
 use nam::geometry::{Light, View};
 use nam::{
-    BrdfQuery, LogMode, NeuralBrdf, NeuralMaterial, NeuralModel, Photo, Roi, Scene, ShadingFrame,
-    Vec3d, relight, relight_roi,
+    BrdfQuery, DVec3, LogMode, NeuralBrdf, NeuralMaterial, NeuralModel, Photo, Roi, Scene,
+    ShadingFrame, relight, relight_roi,
 };
 use nam_weights::TensorFile;
 use std::path::PathBuf;
@@ -50,8 +50,8 @@ fn assert_image_matches_queries(
     }
 }
 
-fn point(x: f64, y: f64, z: f64) -> Vec3d {
-    Vec3d::from_array([x, y, z])
+fn point(x: f64, y: f64, z: f64) -> DVec3 {
+    DVec3::new(x, y, z)
 }
 
 #[test]
@@ -307,8 +307,8 @@ fn directional_orthographic_relight_equals_per_query_evaluation() {
         Vec3::new(-0.2, 0.1, 0.97).normalize(),
     );
     let scene = Scene::new(
-        Light::Directional(Vec3d::from_array(wi.as_dvec3().to_array())),
-        View::Orthographic(Vec3d::from_array(wo.as_dvec3().to_array())),
+        Light::Directional(wi.as_dvec3()),
+        View::Orthographic(wo.as_dvec3()),
     );
     let img = relight(&model, &m, &scene).expect("relight");
     let brdf = NeuralBrdf::new(&model, &m).expect("bind");

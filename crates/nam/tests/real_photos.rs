@@ -16,7 +16,7 @@
 mod common;
 
 use nam::geometry::{CAPTURE_DISTANCE, Light, View, capture_position};
-use nam::{NeuralModel, Photo, RgbImage, Scene, Vec3d, relight};
+use nam::{DVec3, NeuralModel, Photo, RgbImage, Scene, relight};
 use rayon::prelude::*;
 
 /// A photo pixel with any channel at or above this (8-bit 250) is blown out: what the material
@@ -62,7 +62,7 @@ struct Measures {
     side_light_ratio: f64,
 }
 
-fn relit(model: &NeuralModel, material: &nam::NeuralMaterial, light: Vec3d) -> RgbImage<f32> {
+fn relit(model: &NeuralModel, material: &nam::NeuralMaterial, light: DVec3) -> RgbImage<f32> {
     let scene = Scene::new(
         Light::Point(light),
         View::Point(capture_position(CAPTURE_DISTANCE)),
@@ -126,8 +126,8 @@ fn measure(model: &NeuralModel, photo: &Photo) -> Measures {
     }
     assert!(n > 1000, "only {n} well-exposed pixels to compare");
     let n = n as f64;
-    let right = relit(model, &material, Vec3d::new(2.0, 0.0, 3.0));
-    let left = relit(model, &material, Vec3d::new(-2.0, 0.0, 3.0));
+    let right = relit(model, &material, DVec3::new(2.0, 0.0, 3.0));
+    let left = relit(model, &material, DVec3::new(-2.0, 0.0, 3.0));
     Measures {
         log_l1: l1 / n,
         chroma_err: chroma_err / n,

@@ -13,8 +13,8 @@ mod common;
 use glam::{Vec2, Vec3};
 use nam::geometry::{Light, View};
 use nam::{
-    BrdfQuery, LogMode, NamError, NeuralBrdf, NeuralMaterial, NeuralModel, Photo, RgbImage, Scene,
-    Vec3d, relight,
+    BrdfQuery, DVec3, LogMode, NamError, NeuralBrdf, NeuralMaterial, NeuralModel, Photo, RgbImage,
+    Scene, relight,
 };
 use std::sync::OnceLock;
 
@@ -26,8 +26,8 @@ fn model() -> &'static NeuralModel {
     M.get_or_init(|| NeuralModel::embedded().expect("embedded model loads"))
 }
 
-fn v(x: f64, y: f64, z: f64) -> Vec3d {
-    Vec3d::from_array([x, y, z])
+fn v(x: f64, y: f64, z: f64) -> DVec3 {
+    DVec3::new(x, y, z)
 }
 
 /// A textured linear-RGB photo: smooth gradients plus a checker, values in [0.02, 0.9].
@@ -71,7 +71,7 @@ fn assert_params_finite(what: &str, m: &NeuralMaterial) {
 }
 
 /// A point at `dist` from `target` in direction (θ from the normal, azimuth 0).
-fn at_angle(target: Vec3d, theta_deg: f64, dist: f64) -> Vec3d {
+fn at_angle(target: DVec3, theta_deg: f64, dist: f64) -> DVec3 {
     let t = theta_deg.to_radians();
     v(
         target.x + dist * t.sin(),

@@ -5,7 +5,7 @@
 use super::timing::{Case, Row, measure};
 use anyhow::{Context, Result, bail};
 use nam::geometry::{CAPTURE_DISTANCE, Light, View, capture_position};
-use nam::{NeuralMaterial, NeuralModel, Scene, Vec3d, relight};
+use nam::{DVec3, NeuralMaterial, NeuralModel, Scene, relight};
 use nam_model::ParamMap;
 use std::fmt::Write as _;
 
@@ -33,12 +33,12 @@ pub fn run(model: &NeuralModel, map: ParamMap, rep: usize) -> Result<String> {
     let n = s * map.width;
     let material = NeuralMaterial::new(map, on_cpu.fingerprint().to_string())?;
     let point = Scene::new(
-        Light::Point(Vec3d::from_array([1.5, 1.0, 3.5])),
+        Light::Point(DVec3::from_array([1.5, 1.0, 3.5])),
         View::Point(capture_position(CAPTURE_DISTANCE)),
     );
     let directional = Scene::new(
-        Light::Directional(Vec3d::from_array([1.5, 1.0, 3.5])),
-        View::Orthographic(Vec3d::from_array([0.0, 0.0, 1.0])),
+        Light::Directional(DVec3::from_array([1.5, 1.0, 3.5])),
+        View::Orthographic(DVec3::from_array([0.0, 0.0, 1.0])),
     );
     let fl = |macs: u64| 2.0 * macs as f64 * n as f64;
     let m = &material;

@@ -8,7 +8,7 @@ use crate::progress;
 use crate::sweep::{LightSpec, contact_sheet, encode_gif, expand, frame_path, parse_light_spec};
 use anyhow::{Context, Result, bail};
 use nam::geometry::{CAPTURE_FOV_DEG, Light, View, capture_distance, capture_position};
-use nam::{LogMode, NeuralMaterial, NeuralModel, Photo, Scene, Vec3d, relight};
+use nam::{DVec3, LogMode, NeuralMaterial, NeuralModel, Photo, Scene, relight};
 use nam_model::input::LDR_CLAMP;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -128,7 +128,7 @@ fn scene(args: &Args, light: [f64; 3]) -> Result<Scene> {
         );
     }
     let v = match args.view {
-        Some(view) => Vec3d::from_array(view),
+        Some(view) => DVec3::from_array(view),
         None => capture_position(capture_distance(args.photo.fov)),
     };
     if v.z <= 0.0 {
@@ -137,7 +137,7 @@ fn scene(args: &Args, light: [f64; 3]) -> Result<Scene> {
             v.to_array()
         );
     }
-    let l = Vec3d::from_array(light);
+    let l = DVec3::from_array(light);
     let mut scene = Scene::new(
         if args.directional {
             Light::Directional(l)

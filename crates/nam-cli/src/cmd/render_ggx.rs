@@ -6,7 +6,7 @@ use crate::output::{self, OutputFormat};
 use crate::progress;
 use anyhow::{Context, Result, bail};
 use nam_ggx::render::render_with_progress;
-use nam_ggx::{Light, RenderSettings, RgbImage, SvbrdfMaps, Vec3, View};
+use nam_ggx::{DVec3, Light, RenderSettings, RgbImage, SvbrdfMaps, View};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -119,8 +119,8 @@ fn settings(args: &Args) -> Result<RenderSettings> {
     if vz <= 0.0 {
         bail!("--view must be above the surface (z > 0), got z = {vz}");
     }
-    let light = Vec3::new(lx, ly, lz);
-    let view = Vec3::new(vx, vy, vz);
+    let light = DVec3::new(lx, ly, lz);
+    let view = DVec3::new(vx, vy, vz);
     let settings = RenderSettings {
         light: if args.directional_light {
             Light::Directional(light)
