@@ -596,3 +596,57 @@ fn precision_names_what_runs_and_falls_back_to_f32_with_a_note() {
         stderr(&o)
     );
 }
+
+/// Issue 19 classes 1 and 9: scenes whose render would overflow f32 (intensity 1e39, falloff
+/// under a light 1e-19 above a pixel) or whose height f32 cannot hold (z = 1e-46) are refused
+/// with the real limit, before the model is loaded or the photo estimated; the limits
+/// themselves render finite.
+#[test]
+fn scenes_that_would_overflow_are_refused_before_any_work() {
+    let dir = tmp();
+    let photo = small_photo(dir.path(), 16);
+    let out = dir.path().join("o.exr");
+    for (extra, needle) in [
+        (
+            &["--light", "1,1,3", "--intensity", "1e39"][..],
+            "light intensity must lie in [0, 1e6], got 1e39",
+        ),
+        (
+            &["--light", "1,1,1e-46"][..],
+            "light height z = 1e-46 is above the surface but below 1.2e-38",
+        ),
+        (
+            &["--light", "1,1,3", "--view", "0,0,1e-40"][..],
+            "view height z = 1e-40",
+        ),
+        (
+            &["--light", "0.03125,-0.03125,1e-19", "--falloff"][..],
+            "with falloff a point light must be at least 1e-3 above the surface",
+        ),
+    ] {
+        let args = [
+            &["relight", s(&photo), "-o", s(&out), "--backend", "cpu"][..],
+            extra,
+        ]
+        .concat();
+        expect_failure(&args, &out, needle);
+        assert!(
+            !stderr(&run(&args)).contains("backend:"),
+            "validated after loading the model: {extra:?}"
+        );
+    }
+    ok(&[
+        "relight",
+        s(&photo),
+        "-o",
+        s(&out),
+        "--backend",
+        "cpu",
+        "--light",
+        "0.03125,-0.03125,1e-3",
+        "--falloff",
+        "--intensity",
+        "1e6",
+    ]);
+    assert!(read_exr(&out).iter().all(|v| v.is_finite()));
+}

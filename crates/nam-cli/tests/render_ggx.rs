@@ -240,3 +240,69 @@ fn directional_light_and_orthographic_view_give_a_uniform_image_on_uniform_maps(
         }
     }
 }
+
+/// Issue 19 class 1: EXR maps can hold any f32; roughness 1e5 gave NaN and albedo 3e38 gave
+/// Inf in an f32 render with exit 0. Values outside [0, 1] are now load errors that name the
+/// map and the texel; nothing is written.
+#[test]
+fn exr_maps_outside_0_to_1_are_refused_instead_of_rendering_nan_or_inf() {
+    let d = tmp();
+    let out = d.path().join("out.exr");
+    // 4-panel EXR: diffuse | specular | roughness | normal, 4×4 each.
+    let panel = |rough: f32, diffuse: f32| {
+        let mut img = nam_ggx::RgbImage::<f32>::zeros(4, 16).unwrap_or_else(|e| panic!("{e}"));
+        for i in 0..4 {
+            for j in 0..4 {
+                img.set_pixel(i, j, [diffuse; 3]);
+                img.set_pixel(i, 4 + j, [0.04; 3]);
+                img.set_pixel(i, 8 + j, [0.3; 3]);
+                img.set_pixel(i, 12 + j, [0.5, 0.5, 1.0]);
+            }
+        }
+        img.set_pixel(2, 8 + 1, [rough; 3]);
+        img
+    };
+    for (name, rough, diffuse, needle) in [
+        (
+            "rough1e5.exr",
+            1e5,
+            0.5,
+            "roughness map has the value 1e5 at row 2, col 1, above 1",
+        ),
+        ("rough1e10.exr", 1e10, 0.5, "above 1"),
+        (
+            "albedo.exr",
+            0.3,
+            3e38,
+            "diffuse map has the value 3e38 at row 0, col 0, above 1",
+        ),
+    ] {
+        let maps = d.path().join(name);
+        nam_ggx::imageio::write_rgb(
+            &maps,
+            &panel(rough, diffuse),
+            nam_ggx::imageio::PngDepth::Eight,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        for precision in ["f32", "f64"] {
+            let args = ggx_args(&maps, "1,1,4", "0,0,4", &out, &["--precision", precision]);
+            expect_failure(&args, &out, needle);
+        }
+    }
+    // At the edge of the range every pixel is finite.
+    let maps = d.path().join("edge.exr");
+    nam_ggx::imageio::write_rgb(&maps, &panel(1.0, 1.0), nam_ggx::imageio::PngDepth::Eight)
+        .unwrap_or_else(|e| panic!("{e}"));
+    ok(&ggx_args(
+        &maps,
+        "0.01,0,1e-3",
+        "0,0,4",
+        &out,
+        &["--intensity", "1e6", "--falloff"],
+    ));
+    let (img, _) = read_rgb(&out).unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        img.data().iter().all(|v| v.is_finite()),
+        "non-finite pixels"
+    );
+}

@@ -107,6 +107,20 @@ pub enum GgxError {
         /// Pixel column.
         col: usize,
     },
+    /// A reflectance or roughness above 1 (maps hold values in [0, 1]).
+    #[error(
+        "{what} has the value {value:e} at row {row}, col {col}, above 1 (reflectances and roughness lie in [0, 1])"
+    )]
+    AboveOne {
+        /// Which map.
+        what: &'static str,
+        /// The value.
+        value: f32,
+        /// Pixel row.
+        row: usize,
+        /// Pixel column.
+        col: usize,
+    },
     /// A normal-map texel that decodes to the zero vector.
     #[error("normal map has a zero-length normal at row {row}, col {col}")]
     DegenerateNormal {

@@ -74,14 +74,23 @@ fn check_value(what: &'static str, v: f32, k: usize, width: usize) -> Result<()>
             col,
         });
     }
+    if v > 1.0 {
+        return Err(GgxError::AboveOne {
+            what,
+            value: v,
+            row,
+            col,
+        });
+    }
     Ok(())
 }
 
 impl SvbrdfMaps {
     /// Builds maps from linear per-pixel values (row-major, `height·width` entries each).
     ///
-    /// Errors on empty size, length mismatch, NaN/Inf anywhere, negative diffuse/specular/
-    /// roughness, or a zero normal. Normals are renormalised to unit length.
+    /// Errors on empty size, length mismatch, NaN/Inf anywhere, diffuse/specular/roughness
+    /// outside [0, 1] (reflectances and roughness; above 1 an f32 render could overflow), or
+    /// a zero normal. Normals are renormalised to unit length.
     pub fn new(
         height: usize,
         width: usize,

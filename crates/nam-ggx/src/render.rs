@@ -9,6 +9,14 @@ use crate::maps::SvbrdfMaps;
 use crate::vec3::Vec3d;
 use rayon::prelude::*;
 
+/// Largest light intensity (1 = the unit light of the training renders): with it, falloff and
+/// the brightest GGX highlight every accepted scene renders finite in f32.
+pub const MAX_INTENSITY: f64 = 1e6;
+
+/// Lowest height above the surface (material half-widths) of a point light with falloff:
+/// the falloff `d²/|light − p|²` then stays below 1.6e7.
+pub const MIN_FALLOFF_HEIGHT: f64 = 1e-3;
+
 /// Light, viewer and light scaling for [`render`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderSettings {
@@ -33,21 +41,30 @@ impl RenderSettings {
         }
     }
 
-    /// Checks that vectors and intensity are finite, intensity ≥ 0, and directional vectors
-    /// not degenerate (|v| ≥ 1e-6, [`DIRECTION_GUARD`](crate::geometry::DIRECTION_GUARD):
-    /// shorter, the networks would light every pixel from straight above). Lights and viewers
-    /// below the surface are allowed here; they render black.
+    /// Checks what every backend can render finite: coordinates within the f32 range
+    /// (|x| ≤ 3.4e38) and a height above the surface that f32 can hold (z ≤ 0, rendered
+    /// black, or z ≥ 1.2e-38, f32's smallest normal number), directional vectors not
+    /// degenerate (|v| ≥ 1e-6, [`DIRECTION_GUARD`](crate::geometry::DIRECTION_GUARD): shorter,
+    /// the networks would light every pixel from straight above), intensity in
+    /// [0, [`MAX_INTENSITY`]], and with falloff a point light at least [`MIN_FALLOFF_HEIGHT`]
+    /// above the surface.
     pub fn validate(&self) -> Result<()> {
         let (light, view) = (self.light.source::<f64>(), self.view.source::<f64>());
-        if !light
-            .coordinates()
-            .iter()
-            .chain(&view.coordinates())
-            .all(|x| x.is_finite())
-        {
-            return Err(GgxError::InvalidArgument(
-                "light and view must have finite coordinates".into(),
-            ));
+        let f32_max = f64::from(f32::MAX);
+        for (what, s) in [("light", light), ("view", view)] {
+            let c = s.coordinates();
+            if !c.iter().all(|x| x.is_finite() && x.abs() <= f32_max) {
+                return Err(GgxError::InvalidArgument(format!(
+                    "{what} coordinates {c:?} must be finite and within ±3.4e38 (f32's range)"
+                )));
+            }
+            if c[2] > 0.0 && c[2] < f64::from(f32::MIN_POSITIVE) {
+                return Err(GgxError::InvalidArgument(format!(
+                    "{what} height z = {:e} is above the surface but below 1.2e-38, the smallest \
+                     height the f32 networks can hold; use z ≥ 1.2e-38 (or z ≤ 0: black)",
+                    c[2]
+                )));
+            }
         }
         let origin = Vec3d::zero();
         let degenerate = |s: Source<f64>| {
@@ -58,11 +75,20 @@ impl RenderSettings {
                 "a light or view direction is the zero vector (or shorter than 1e-6)".into(),
             ));
         }
-        if !(self.intensity.is_finite() && self.intensity >= 0.0) {
+        if !(self.intensity >= 0.0 && self.intensity <= MAX_INTENSITY) {
             return Err(GgxError::InvalidArgument(format!(
-                "light intensity must be finite and ≥ 0, got {}",
+                "light intensity must lie in [0, {MAX_INTENSITY:e}], got {:e}",
                 self.intensity
             )));
+        }
+        if let (true, Light::Point(p)) = (self.falloff, self.light) {
+            if p.z > 0.0 && p.z < MIN_FALLOFF_HEIGHT {
+                return Err(GgxError::InvalidArgument(format!(
+                    "with falloff a point light must be at least {MIN_FALLOFF_HEIGHT:e} above the \
+                     surface (the falloff d²/r² diverges at the pixel below it), got z = {:e}",
+                    p.z
+                )));
+            }
         }
         Ok(())
     }

@@ -65,20 +65,9 @@ pub fn relight_roi(
         )));
     }
     let mut img = RgbImage::zeros(roi.height, roi.width)?;
-    // One route for both backends: the scene in the networks' f32, whose per-pixel
-    // directions both compute with `Directions::at`.
+    // One route for both backends: the scene in the networks' f32 (`validate` checked that
+    // it fits), whose per-pixel directions both compute with `Directions::at`.
     let (light, view): (Source, Source) = (scene.light.source(), scene.view.source());
-    if !light
-        .coordinates()
-        .iter()
-        .chain(&view.coordinates())
-        .all(|x| x.is_finite())
-    {
-        return Err(NamError::Query(format!(
-            "light and view coordinates must fit in f32 (|x| < 3.4e38), got {:?} and {:?}",
-            scene.light, scene.view
-        )));
-    }
     if !above_surface(scene) {
         return Ok(img);
     }
@@ -99,7 +88,9 @@ pub fn relight_roi(
         let (i, j) = (roi.row + k / roi.width, roi.col + k % roi.width);
         let scale = scene.scale_at(pixel_position(i, j, h, w)) as f32;
         for c in 0..3 {
-            dst[c] = src[c] * scale;
+            // The network's radiance is capped at f32::MAX; so is its product with the
+            // scene's (bounded) scale, so an accepted scene never gives +Inf.
+            dst[c] = (src[c] * scale).min(f32::MAX);
         }
     }
     Ok(img)
