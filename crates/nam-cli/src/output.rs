@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use nam_ggx::RgbImage;
 use nam_ggx::color::srgb_encode;
 use nam_ggx::imageio::{PngDepth, encode_exr, encode_png};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Output image format, chosen by the file extension.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -56,6 +56,44 @@ pub fn check_output_dir(path: &Path) -> Result<()> {
             path.display(),
             dir.display()
         );
+    }
+    Ok(())
+}
+
+/// Where a path points, for comparing files: the canonical path of an existing file, else the
+/// canonical directory joined with the file name (the directory is checked to exist first).
+fn identity(path: &Path) -> PathBuf {
+    if let Ok(p) = path.canonicalize() {
+        return p;
+    }
+    let dir = parent_dir(path);
+    let dir = dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf());
+    path.file_name().map_or(dir.clone(), |name| dir.join(name))
+}
+
+/// Refuses, before any work, a run whose outputs would overwrite one of its inputs or each
+/// other (canonical paths compared: `./p.png`, `p.png` and a symlink to it are one file).
+pub fn check_distinct(inputs: &[&Path], outputs: &[PathBuf]) -> Result<()> {
+    let inputs: Vec<(PathBuf, &Path)> = inputs.iter().map(|p| (identity(p), *p)).collect();
+    let mut seen: Vec<(PathBuf, &Path)> = Vec::with_capacity(outputs.len());
+    for out in outputs {
+        let id = identity(out);
+        if let Some((_, input)) = inputs.iter().find(|(i, _)| *i == id) {
+            bail!(
+                "{}: this output is the input {}; choose another output name (nothing was written)",
+                out.display(),
+                input.display()
+            );
+        }
+        if let Some((_, other)) = seen.iter().find(|(s, _)| *s == id) {
+            bail!(
+                "{}: two outputs of this run are the same file ({} and {}); choose distinct names",
+                out.display(),
+                other.display(),
+                out.display()
+            );
+        }
+        seen.push((id, out));
     }
     Ok(())
 }

@@ -650,3 +650,101 @@ fn scenes_that_would_overflow_are_refused_before_any_work() {
     ]);
     assert!(read_exr(&out).iter().all(|v| v.is_finite()));
 }
+
+/// Issue 19 class 4: an output that is an input (by any spelling: `./p.png`, a symlink) or
+/// another output of the same run is refused before any work, and the input is untouched.
+#[test]
+fn outputs_never_overwrite_an_input_or_each_other() {
+    let dir = tmp();
+    let photo = small_photo(dir.path(), 16);
+    let before = std::fs::read(&photo).unwrap_or_else(|e| panic!("{e}"));
+    let dotted = dir
+        .path()
+        .join(".")
+        .join(photo.file_name().unwrap_or_default());
+    let mut cases: Vec<(Vec<String>, &str)> = vec![
+        (
+            vec!["-o".into(), s(&photo).into()],
+            "this output is the input",
+        ),
+        (
+            vec!["-o".into(), s(&dotted).into()],
+            "this output is the input",
+        ),
+        (
+            vec![
+                "-o".into(),
+                s(&dir.path().join("f.png")).into(),
+                "--light".into(),
+                "0,1,3".into(),
+                "--sheet".into(),
+                s(&dir.path().join("f_001.png")).into(),
+            ],
+            "two outputs of this run are the same file",
+        ),
+        (
+            vec![
+                "-o".into(),
+                s(&dir.path().join("g.png")).into(),
+                "--sheet".into(),
+                s(&photo).into(),
+            ],
+            "this output is the input",
+        ),
+    ];
+    #[cfg(unix)]
+    {
+        let link = dir.path().join("link.png");
+        std::os::unix::fs::symlink(&photo, &link).unwrap_or_else(|e| panic!("{e}"));
+        cases.push((
+            vec!["-o".into(), s(&link).into()],
+            "this output is the input",
+        ));
+    }
+    for (extra, needle) in &cases {
+        let mut args: Vec<&str> =
+            vec!["relight", s(&photo), "--light", "1,0,3", "--backend", "cpu"];
+        args.extend(extra.iter().map(String::as_str));
+        let o = run(&args);
+        let err = stderr(&o);
+        assert!(
+            !o.status.success() && err.contains(needle),
+            "{args:?}: {err}"
+        );
+        assert!(
+            !err.contains("backend:"),
+            "checked after loading the model: {err}"
+        );
+    }
+    assert_eq!(
+        std::fs::read(&photo).unwrap_or_default(),
+        before,
+        "the input photo changed"
+    );
+    let leftovers = std::fs::read_dir(dir.path())
+        .map(|d| d.count())
+        .unwrap_or(0);
+    assert_eq!(
+        leftovers,
+        1 + usize::from(cfg!(unix)),
+        "only the photo (and the link) remain"
+    );
+    // render-ggx: the maps file as its own output.
+    let maps = dir.path().join("maps.png");
+    std::fs::copy(root().join("assets/example_maps.png"), &maps).unwrap_or_else(|e| panic!("{e}"));
+    let o = run(&[
+        "render-ggx",
+        s(&maps),
+        "--light",
+        "1,1,4",
+        "--view",
+        "0,0,4",
+        "-o",
+        s(&maps),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("this output is the input"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -35,6 +35,10 @@ pub fn run(args: &Args) -> Result<()> {
         bail!("{}: the output must end in .nam", args.output.display());
     }
     crate::output::check_output_dir(&args.output)?;
+    let inputs: Vec<&std::path::Path> = std::iter::once(args.photo.as_path())
+        .chain(args.model.model.as_deref())
+        .collect();
+    crate::output::check_distinct(&inputs, std::slice::from_ref(&args.output))?;
     if args
         .photo
         .extension()

@@ -3,7 +3,9 @@
 
 use crate::args::{parse_fov, parse_non_negative, parse_vec3};
 use crate::backend::ModelArgs;
-use crate::output::{check_output_dir, check_output_path, write_atomic, write_linear_rgb};
+use crate::output::{
+    check_distinct, check_output_dir, check_output_path, write_atomic, write_linear_rgb,
+};
 use crate::progress;
 use crate::sweep::{LightSpec, contact_sheet, encode_gif, expand, frame_path, parse_light_spec};
 use anyhow::{Context, Result, bail};
@@ -80,6 +82,14 @@ pub fn run(args: &Args) -> Result<()> {
         .iter()
         .map(|&l| scene(args, l))
         .collect::<Result<_>>()?;
+    let mut outputs: Vec<PathBuf> = (0..scenes.len())
+        .map(|k| frame_path(&args.output, k, scenes.len()))
+        .collect();
+    outputs.extend(args.sheet.iter().chain(&args.gif).cloned());
+    let inputs: Vec<&Path> = std::iter::once(args.input.as_path())
+        .chain(args.model.model.as_deref())
+        .collect();
+    check_distinct(&inputs, &outputs)?;
     let model = args.model.load()?;
     let material = load_material(&model, &args.input, &args.photo)?;
 

@@ -79,6 +79,7 @@ pub struct Args {
 /// Runs `render-ggx`.
 pub fn run(args: &Args) -> Result<()> {
     let format = output::check_output_path(&args.output)?;
+    output::check_distinct(&[args.maps.as_path()], std::slice::from_ref(&args.output))?;
     let settings = settings(args)?;
     let maps = SvbrdfMaps::load(&args.maps).context("cannot load the SVBRDF maps")?;
 
