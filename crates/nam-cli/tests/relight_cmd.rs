@@ -748,3 +748,81 @@ fn outputs_never_overwrite_an_input_or_each_other() {
         stderr(&o)
     );
 }
+
+/// Issue 19 classes 2, 3 and 7 through the CLI: a truncated JPEG is an error, a sideways
+/// phone JPEG is turned upright with a note, and a photo above the 4096 limit loads when
+/// `--resize` brings it below.
+#[test]
+fn jpegs_are_complete_and_upright_and_resize_comes_before_the_size_limit() {
+    let dir = tmp();
+    let out = dir.path().join("o.png");
+    let jpeg = dir.path().join("p.jpg");
+    image::open(root().join("assets/example_photo.png"))
+        .unwrap_or_else(|e| panic!("{e}"))
+        .resize_exact(32, 32, image::imageops::FilterType::Triangle)
+        .to_rgb8()
+        .save(&jpeg)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let bytes = std::fs::read(&jpeg).unwrap_or_else(|e| panic!("{e}"));
+    let cut = dir.path().join("cut.jpg");
+    std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap_or_else(|e| panic!("{e}"));
+    let args = [
+        "relight",
+        s(&cut),
+        "--light",
+        "1,1,3",
+        "-o",
+        s(&out),
+        "--backend",
+        "cpu",
+    ];
+    expect_failure(&args, &out, "the JPEG ends before its end-of-image marker");
+    // Orientation 6 (EXIF APP1 after SOI; big-endian TIFF with one IFD entry).
+    let mut sideways = bytes[..2].to_vec();
+    sideways.extend_from_slice(&[0xFF, 0xE1, 0, 34]);
+    sideways.extend_from_slice(
+        b"Exif\0\0MM\0\x2a\0\0\0\x08\0\x01\x01\x12\0\x03\0\0\0\x01\0\x06\0\0\0\0\0\0",
+    );
+    sideways.extend_from_slice(&bytes[2..]);
+    let turned = dir.path().join("turned.jpg");
+    std::fs::write(&turned, &sideways).unwrap_or_else(|e| panic!("{e}"));
+    let o = run(&[
+        "relight",
+        s(&turned),
+        "--light",
+        "1,1,3",
+        "-o",
+        s(&out),
+        "--backend",
+        "cpu",
+    ]);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("applied its EXIF orientation (rotated 90° clockwise)"),
+        "{err}"
+    );
+    // 4097² is above the photo limit; with --resize 16 it is resampled first.
+    let out = dir.path().join("big_relit.png");
+    let big = dir.path().join("big.png");
+    image::RgbImage::from_pixel(4097, 4097, image::Rgb([120, 100, 80]))
+        .save(&big)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let args = [
+        "relight",
+        s(&big),
+        "--light",
+        "1,1,3",
+        "-o",
+        s(&out),
+        "--backend",
+        "cpu",
+    ];
+    expect_failure(
+        &args,
+        &out,
+        "largest supported side is 4096 (resize it, e.g. `--resize 1024`",
+    );
+    ok(&[&args[..], &["--resize", "16"]].concat());
+    assert_eq!(image::open(&out).map(|i| i.width()).unwrap_or(0), 16);
+}

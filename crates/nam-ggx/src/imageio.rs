@@ -228,21 +228,78 @@ fn check_declared_size(width: usize, height: usize) -> std::result::Result<(), S
     Ok(())
 }
 
+/// A JPEG must reach its end-of-image marker: the decoder fills a file cut short with grey
+/// and reports success. The marker segments are walked from SOI to the first start-of-scan;
+/// in the entropy-coded data after it an `FF D9` pair can only be EOI (a data byte 0xFF is
+/// always followed by 0x00, restart markers are FF D0–D7), so one must follow. EXIF
+/// thumbnails sit inside an APP1 segment and are skipped with it.
+fn check_jpeg_complete(bytes: &[u8]) -> std::result::Result<(), String> {
+    const TRUNCATED: &str = "the JPEG ends before its end-of-image marker (truncated file?)";
+    let mut i = 2;
+    loop {
+        while bytes.get(i) == Some(&0xFF) && bytes.get(i + 1) == Some(&0xFF) {
+            i += 1; // fill bytes
+        }
+        let (Some(&0xFF), Some(&marker), Some(&hi), Some(&lo)) = (
+            bytes.get(i),
+            bytes.get(i + 1),
+            bytes.get(i + 2),
+            bytes.get(i + 3),
+        ) else {
+            return Err(TRUNCATED.into());
+        };
+        let next = i + 2 + usize::from(u16::from_be_bytes([hi, lo]));
+        if marker == 0xDA {
+            let scan = bytes.get(next..).ok_or(TRUNCATED)?;
+            return if scan.windows(2).any(|w| w == [0xFF, 0xD9]) {
+                Ok(())
+            } else {
+                Err(TRUNCATED.into())
+            };
+        }
+        i = next;
+    }
+}
+
+/// What an EXIF orientation does to the stored pixels, in words (`None`: nothing).
+pub fn describe_orientation(o: ::image::metadata::Orientation) -> Option<&'static str> {
+    use ::image::metadata::Orientation as O;
+    match o {
+        O::NoTransforms => None,
+        O::Rotate90 => Some("rotated 90° clockwise"),
+        O::Rotate180 => Some("rotated 180°"),
+        O::Rotate270 => Some("rotated 90° counter-clockwise"),
+        O::FlipHorizontal => Some("mirrored left-right"),
+        O::FlipVertical => Some("mirrored top-bottom"),
+        O::Rotate90FlipH => Some("rotated 90° clockwise and mirrored"),
+        O::Rotate270FlipH => Some("rotated 90° counter-clockwise and mirrored"),
+    }
+}
+
+/// Decodes PNG/JPEG as stored values in [0, 1], upright: the EXIF orientation (phone photos
+/// are often stored sideways, Orientation = 6) is applied as a viewer would.
 fn decode_ldr(bytes: &[u8]) -> std::result::Result<(usize, usize, Vec<f32>), String> {
     use ::image::ImageDecoder;
     let mut reader = ::image::ImageReader::new(Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())?;
+    if reader.format() == Some(::image::ImageFormat::Jpeg) {
+        check_jpeg_complete(bytes)?;
+    }
     let mut limits = ::image::Limits::default();
     limits.max_image_width = Some(MAX_IMAGE_SIDE as u32);
     limits.max_image_height = Some(MAX_IMAGE_SIDE as u32);
     limits.max_alloc = Some(MAX_DECODER_ALLOC);
     reader.limits(limits);
     // Header first: the declared size is checked before the decoder allocates its buffer.
-    let decoder = reader.into_decoder().map_err(|e| e.to_string())?;
+    let mut decoder = reader.into_decoder().map_err(|e| e.to_string())?;
     let (w, h) = decoder.dimensions();
     check_declared_size(w as usize, h as usize)?;
-    let dynamic = ::image::DynamicImage::from_decoder(decoder).map_err(|e| e.to_string())?;
+    let orientation = decoder
+        .orientation()
+        .unwrap_or(::image::metadata::Orientation::NoTransforms);
+    let mut dynamic = ::image::DynamicImage::from_decoder(decoder).map_err(|e| e.to_string())?;
+    dynamic.apply_orientation(orientation);
     let rgb = dynamic.to_rgb32f();
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
     Ok((w, h, rgb.into_raw()))

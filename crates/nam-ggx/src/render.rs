@@ -81,14 +81,15 @@ impl RenderSettings {
                 self.intensity
             )));
         }
-        if let (true, Light::Point(p)) = (self.falloff, self.light) {
-            if p.z > 0.0 && p.z < MIN_FALLOFF_HEIGHT {
-                return Err(GgxError::InvalidArgument(format!(
-                    "with falloff a point light must be at least {MIN_FALLOFF_HEIGHT:e} above the \
-                     surface (the falloff d²/r² diverges at the pixel below it), got z = {:e}",
-                    p.z
-                )));
-            }
+        if let (true, Light::Point(p)) = (self.falloff, self.light)
+            && p.z > 0.0
+            && p.z < MIN_FALLOFF_HEIGHT
+        {
+            return Err(GgxError::InvalidArgument(format!(
+                "with falloff a point light must be at least {MIN_FALLOFF_HEIGHT:e} above the \
+                 surface (the falloff d²/r² diverges at the pixel below it), got z = {:e}",
+                p.z
+            )));
         }
         Ok(())
     }

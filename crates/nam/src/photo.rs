@@ -38,9 +38,26 @@ impl Photo {
 
     /// Like [`Photo::load`], but centre-crops a non-square image to its shorter side first.
     pub fn load_cropped(path: impl AsRef<Path>) -> Result<Self> {
-        let (h, w, rgb) = read_linear(path.as_ref())?;
-        let (h, w, rgb) = center_crop(h, w, rgb);
-        Self::from_linear_rgb(h, w, rgb).map_err(|e| e.in_file(path.as_ref()))
+        Self::load_resized(path, true, None)
+    }
+
+    /// Like [`Photo::load`], optionally centre-cropped (`crop`) and resampled to
+    /// `side`×`side` ([`Photo::resized`]'s filters) *before* the [`MAX_PHOTO_SIDE`] limit
+    /// applies, so a photo larger than that loads when it is resized below it (files are still
+    /// bounded by the decoder's `MAX_IMAGE_SIDE`, 16384).
+    pub fn load_resized(path: impl AsRef<Path>, crop: bool, side: Option<usize>) -> Result<Self> {
+        let path = path.as_ref();
+        let (h, w, rgb) = read_linear(path)?;
+        let (h, w, rgb) = if crop {
+            center_crop(h, w, rgb)
+        } else {
+            (h, w, rgb)
+        };
+        let (h, w, rgb) = match side {
+            Some(side) if h == w => (side, side, resample(rgb, h, side)?),
+            _ => (h, w, rgb),
+        };
+        Self::from_linear_rgb(h, w, rgb).map_err(|e| e.in_file(path))
     }
 
     /// Wraps `height`×`width` linear RGB values, row-major and interleaved
@@ -61,7 +78,7 @@ impl Photo {
         if width > MAX_PHOTO_SIDE {
             return Err(NamError::Photo(format!(
                 "the photo is {width}×{height}; the largest supported side is {MAX_PHOTO_SIDE} \
-                 (resize it)"
+                 (resize it, e.g. `--resize 1024` in nam-cli)"
             )));
         }
         if rgb.len() != width * height * 3 {
@@ -142,26 +159,9 @@ impl Photo {
     /// Catmull-Rom on upscale
     /// (in linear space, so highlights keep their energy). The field of view is kept.
     pub fn resized(&self, side: usize) -> Result<Self> {
-        if side == 0 || side > MAX_PHOTO_SIDE {
-            return Err(NamError::Photo(format!(
-                "resize target {side} is outside 1..={MAX_PHOTO_SIDE}"
-            )));
-        }
-        let buf = image::ImageBuffer::<image::Rgb<f32>, Vec<f32>>::from_raw(
-            self.side as u32,
-            self.side as u32,
-            self.rgb.clone(),
-        )
-        .ok_or_else(|| NamError::Photo("internal: photo buffer size".into()))?;
-        let filter = if side < self.side {
-            image::imageops::FilterType::Triangle
-        } else {
-            image::imageops::FilterType::CatmullRom
-        };
-        let out = image::imageops::resize(&buf, side as u32, side as u32, filter);
         Ok(Self {
             fov_deg: self.fov_deg,
-            ..Self::from_linear_rgb(side, side, out.into_raw())?
+            ..Self::from_linear_rgb(side, side, resample(self.rgb.clone(), self.side, side)?)?
         })
     }
 
@@ -172,6 +172,25 @@ impl Photo {
         let d = self.capture_distance() as f32;
         Ok(network_input(&self.rgb, self.side, self.side, mode, d)?)
     }
+}
+
+/// A square `from`×`from` linear RGB buffer resampled to `to`×`to`: a triangle (bilinear)
+/// filter on downscale, Catmull-Rom on upscale.
+fn resample(rgb: Vec<f32>, from: usize, to: usize) -> Result<Vec<f32>> {
+    if to == 0 || to > MAX_PHOTO_SIDE {
+        return Err(NamError::Photo(format!(
+            "resize target {to} is outside 1..={MAX_PHOTO_SIDE}"
+        )));
+    }
+    let buf =
+        image::ImageBuffer::<image::Rgb<f32>, Vec<f32>>::from_raw(from as u32, from as u32, rgb)
+            .ok_or_else(|| NamError::Photo("internal: photo buffer size".into()))?;
+    let filter = if to < from {
+        image::imageops::FilterType::Triangle
+    } else {
+        image::imageops::FilterType::CatmullRom
+    };
+    Ok(image::imageops::resize(&buf, to as u32, to as u32, filter).into_raw())
 }
 
 /// Reads any supported image as linear RGB `(height, width, rgb)`: LDR files are sRGB-decoded.

@@ -215,16 +215,15 @@ pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Resu
             input.display()
         );
     }
-    let mut photo = if how.crop {
-        Photo::load_cropped(input)
-    } else {
-        Photo::load(input)
+    if let Some(turn) = exif_orientation(input) {
+        eprintln!(
+            "note: {} is stored sideways or mirrored; applied its EXIF orientation ({turn})",
+            input.display()
+        );
     }
-    .with_context(|| format!("reading {}", input.display()))?;
-    if let Some(side) = how.resize {
-        photo = photo.resized(side)?;
-    }
-    photo = photo.with_fov(how.fov)?;
+    let photo = Photo::load_resized(input, how.crop, how.resize)
+        .with_context(|| format!("reading {}", input.display()))?
+        .with_fov(how.fov)?;
     if model.config().log_mode == LogMode::Ldr {
         let blown = photo.saturated_fraction(LDR_CLAMP);
         if blown > SATURATED_NOTE_ABOVE {
@@ -249,6 +248,17 @@ fn has_alpha(path: &Path) -> bool {
         .ok()
         .and_then(|r| r.into_decoder().ok())
         .is_some_and(|d| d.color_type().has_alpha())
+}
+
+/// The EXIF orientation the loader applies, in words (read from the header only, like
+/// [`has_alpha`]; `None` without one).
+fn exif_orientation(path: &Path) -> Option<&'static str> {
+    use image::ImageDecoder;
+    let mut decoder = image::ImageReader::open(path)
+        .and_then(|r| r.with_guessed_format())
+        .ok()
+        .and_then(|r| r.into_decoder().ok())?;
+    nam_ggx::imageio::describe_orientation(decoder.orientation().ok()?)
 }
 
 fn check_gif_path(path: &Path) -> Result<()> {
