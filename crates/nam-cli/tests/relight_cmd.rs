@@ -826,3 +826,89 @@ fn jpegs_are_complete_and_upright_and_resize_comes_before_the_size_limit() {
     ok(&[&args[..], &["--resize", "16"]].concat());
     assert_eq!(image::open(&out).map(|i| i.width()).unwrap_or(0), 16);
 }
+
+/// Issue 19 class 6: reads are bounded. A device behind a symlink (`/dev/zero`) is refused
+/// as not a regular file and an oversized file by its size, before being read; the limits are
+/// named in the message.
+#[cfg(unix)]
+#[test]
+fn unbounded_reads_are_refused_before_reading() {
+    let dir = tmp();
+    let out = dir.path().join("o.png");
+    let zero_png = dir.path().join("zero.png");
+    std::os::unix::fs::symlink("/dev/zero", &zero_png).unwrap_or_else(|e| panic!("{e}"));
+    let zero_nam = dir.path().join("zero.nam");
+    std::os::unix::fs::symlink("/dev/zero", &zero_nam).unwrap_or_else(|e| panic!("{e}"));
+    let zero_model = dir.path().join("zero.safetensors");
+    std::os::unix::fs::symlink("/dev/zero", &zero_model).unwrap_or_else(|e| panic!("{e}"));
+    let photo = small_photo(dir.path(), 16);
+    for args in [
+        vec![
+            "relight",
+            s(&zero_png),
+            "--light",
+            "1,1,3",
+            "-o",
+            s(&out),
+            "--backend",
+            "cpu",
+        ],
+        vec![
+            "relight",
+            s(&zero_nam),
+            "--light",
+            "1,1,3",
+            "-o",
+            s(&out),
+            "--backend",
+            "cpu",
+        ],
+        vec![
+            "relight",
+            s(&photo),
+            "--model",
+            s(&zero_model),
+            "--light",
+            "1,1,3",
+            "-o",
+            s(&out),
+        ],
+    ] {
+        expect_failure(&args, &out, "not a regular file");
+    }
+    // A sparse file larger than a model may be (costs no disk).
+    let huge = dir.path().join("huge.safetensors");
+    std::fs::File::create(&huge)
+        .and_then(|f| f.set_len(nam::MAX_MODEL_FILE_BYTES + 1))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let args = [
+        "relight",
+        s(&photo),
+        "--model",
+        s(&huge),
+        "--light",
+        "1,1,3",
+        "-o",
+        s(&out),
+    ];
+    expect_failure(
+        &args,
+        &out,
+        "is more than a model file may be (268435456 bytes, 256 MiB)",
+    );
+    let huge_png = dir.path().join("huge.png");
+    std::fs::File::create(&huge_png)
+        .and_then(|f| f.set_len(nam_ggx::imageio::MAX_IMAGE_FILE_BYTES + 1))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let args = [
+        "relight",
+        s(&huge_png),
+        "--light",
+        "1,1,3",
+        "-o",
+        s(&out),
+        "--backend",
+        "cpu",
+    ];
+    expect_failure(&args, &out, "is more than an image file may be");
+}

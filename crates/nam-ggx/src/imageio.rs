@@ -152,13 +152,55 @@ impl FileKind {
     }
 }
 
-/// Reads an RGB image file (gray is expanded, alpha is dropped). EXR values are checked to
-/// be finite (NaN/Inf → [`GgxError::NonFinite`] wrapped with the path).
+/// Largest image file read (bytes): above any compressed 64 Mpx ([`MAX_IMAGE_PIXELS`]) PNG,
+/// JPEG or EXR; checked before reading.
+pub const MAX_IMAGE_FILE_BYTES: u64 = 512 << 20;
+
+/// Reads a whole file of at most `max_bytes`, checking before reading that it is a regular
+/// file (a symlink to `/dev/zero`, a FIFO or a directory is refused) and not larger; reads at
+/// most `max_bytes + 1` bytes even if the file grows meanwhile. `what` names the kind of file
+/// in the error. The one bounded read of nam: images here, models and materials in the facade.
+pub fn read_bounded(path: &Path, max_bytes: u64, what: &str) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("not a regular file (a directory, device or pipe); expected {what}"),
+        ));
+    }
+    let too_big = |len: u64| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "{len} bytes is more than {what} may be ({max_bytes} bytes, {} MiB)",
+                max_bytes >> 20
+            ),
+        )
+    };
+    if meta.len() > max_bytes {
+        return Err(too_big(meta.len()));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    std::fs::File::open(path)?
+        .take(max_bytes + 1)
+        .read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(too_big(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
+/// Reads an RGB image file of at most [`MAX_IMAGE_FILE_BYTES`] (gray is expanded, alpha is
+/// dropped). EXR values are checked to be finite (NaN/Inf → [`GgxError::NonFinite`] wrapped
+/// with the path).
 pub fn read_rgb(path: &Path) -> Result<(RgbImage<f32>, FileKind)> {
     let kind = FileKind::of(path)?;
-    let bytes = std::fs::read(path).map_err(|error| GgxError::Io {
-        path: path.to_path_buf(),
-        error,
+    let bytes = read_bounded(path, MAX_IMAGE_FILE_BYTES, "an image file").map_err(|error| {
+        GgxError::Io {
+            path: path.to_path_buf(),
+            error,
+        }
     })?;
     Ok((decode_rgb(&bytes, kind, path)?, kind))
 }

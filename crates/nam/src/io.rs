@@ -5,9 +5,19 @@ use crate::error::{NamError, Result};
 use std::io::Write;
 use std::path::Path;
 
-/// Reads the whole file at `path`; an error names the path.
-pub(crate) fn read(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|error| NamError::Io {
+/// Largest model file read (bytes): a C = 64 f32 model is ~40 MB, the shipped C = 8 f16 one
+/// 4 MB.
+pub const MAX_MODEL_FILE_BYTES: u64 = 256 << 20;
+
+/// Largest `.nam` file read (bytes): the f32 params of a [`crate::MAX_PHOTO_SIDE`]² material
+/// (64 channels) plus a header.
+pub const MAX_MATERIAL_FILE_BYTES: u64 =
+    (crate::MAX_PHOTO_SIDE * crate::MAX_PHOTO_SIDE * 64 * 4) as u64 + (1 << 20);
+
+/// Reads the whole file at `path`, refusing non-regular files and files above `max_bytes`
+/// before reading ([`nam_ggx::imageio::read_bounded`]); an error names the path.
+pub(crate) fn read(path: &Path, max_bytes: u64, what: &str) -> Result<Vec<u8>> {
+    nam_ggx::imageio::read_bounded(path, max_bytes, what).map_err(|error| NamError::Io {
         path: path.to_path_buf(),
         error,
     })

@@ -65,7 +65,8 @@ impl NeuralMaterial {
     /// Reads a `.nam` file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        Self::from_bytes(&crate::io::read(path)?, &path.display().to_string())
+        let bytes = crate::io::read(path, crate::io::MAX_MATERIAL_FILE_BYTES, "a .nam material")?;
+        Self::from_bytes(&bytes, &path.display().to_string())
     }
 
     /// Writes a `.nam` file atomically (a temporary file in the same folder, then rename), so

@@ -54,7 +54,8 @@ impl NeuralModel {
     /// Reads and validates a model file (`.safetensors`, docs/FORMAT.md).
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        Self::from_bytes(&crate::io::read(path)?, &path.display().to_string())
+        let bytes = crate::io::read(path, crate::io::MAX_MODEL_FILE_BYTES, "a model file")?;
+        Self::from_bytes(&bytes, &path.display().to_string())
     }
 
     /// Parses and validates a model held in memory; `label` names it in errors.
