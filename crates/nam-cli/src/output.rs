@@ -101,12 +101,21 @@ pub fn check_distinct(inputs: &[&Path], outputs: &[PathBuf]) -> Result<()> {
 /// Writes a linear RGB image (the renderer's radiance) to `path` atomically, encoded per
 /// [`OutputFormat`].
 pub fn write_linear_rgb(path: &Path, img: &RgbImage<f32>) -> Result<()> {
-    let bytes = match OutputFormat::from_path(path)? {
+    write_atomic(path, &encode_linear_rgb(path, img)?)
+}
+
+/// Like [`write_linear_rgb`], but staged: moved into place by [`nam::commit_all`] with the
+/// other outputs of the run, or removed if the run fails.
+pub fn stage_linear_rgb(path: &Path, img: &RgbImage<f32>) -> Result<nam::Staged> {
+    Ok(nam::Staged::write(path, &encode_linear_rgb(path, img)?)?)
+}
+
+fn encode_linear_rgb(path: &Path, img: &RgbImage<f32>) -> Result<Vec<u8>> {
+    Ok(match OutputFormat::from_path(path)? {
         OutputFormat::Png => encode_png(&img.map(srgb_encode), PngDepth::Eight),
         OutputFormat::Exr => encode_exr(img),
     }
-    .with_context(|| format!("encoding {}", path.display()))?;
-    write_atomic(path, &bytes)
+    .with_context(|| format!("encoding {}", path.display()))?)
 }
 
 /// Writes `bytes` to `path` atomically (see [`nam::write_atomic`]).

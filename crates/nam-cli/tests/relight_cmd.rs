@@ -912,3 +912,59 @@ fn unbounded_reads_are_refused_before_reading() {
     ];
     expect_failure(&args, &out, "is more than an image file may be");
 }
+
+/// Issue 19 class 5: a sweep that fails after its frames are rendered (here the GIF's name is
+/// longer than the file system allows, so its final rename fails) leaves none of its outputs
+/// and no temporary files; before, the frames and the sheet stayed behind.
+#[test]
+fn a_failed_sweep_leaves_nothing_it_wrote() {
+    let dir = tmp();
+    let photo = small_photo(dir.path(), 16);
+    let out_dir = dir.path().join("out");
+    std::fs::create_dir(&out_dir).unwrap_or_else(|e| panic!("{e}"));
+    let frames = out_dir.join("f.png");
+    let sheet = out_dir.join("sheet.png");
+    let gif = out_dir.join(format!("{}.gif", "g".repeat(300)));
+    let o = run(&[
+        "relight",
+        s(&photo),
+        "--light",
+        "orbit:3",
+        "-o",
+        s(&frames),
+        "--sheet",
+        s(&sheet),
+        "--gif",
+        s(&gif),
+        "--backend",
+        "cpu",
+    ]);
+    assert!(!o.status.success(), "the over-long GIF name must fail");
+    assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
+    let left: Vec<_> = std::fs::read_dir(&out_dir)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .flatten()
+        .map(|e| e.file_name())
+        .collect();
+    assert!(left.is_empty(), "a failed run left {left:?}");
+    // The same sweep with a valid name writes all five outputs.
+    let gif = out_dir.join("g.gif");
+    ok(&[
+        "relight",
+        s(&photo),
+        "--light",
+        "orbit:3",
+        "-o",
+        s(&frames),
+        "--sheet",
+        s(&sheet),
+        "--gif",
+        s(&gif),
+        "--backend",
+        "cpu",
+    ]);
+    assert_eq!(
+        std::fs::read_dir(&out_dir).map(|d| d.count()).unwrap_or(0),
+        5
+    );
+}

@@ -27,25 +27,75 @@ pub(crate) fn read(path: &Path, max_bytes: u64, what: &str) -> Result<Vec<u8>> {
 /// filled, flushed to disk and renamed over `path`; on any error it is removed, so `path` is
 /// either untouched or complete.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let io = |error| NamError::Io {
-        path: path.to_path_buf(),
-        error,
-    };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".nam-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(io)?;
-    tmp.write_all(bytes)
-        .and_then(|()| final_permissions(path, tmp.as_file()))
-        .and_then(|perm| tmp.as_file().set_permissions(perm))
-        .and_then(|()| tmp.as_file().sync_all())
-        .map_err(io)?;
-    tmp.persist(path).map_err(|e| io(e.error))?;
+    Staged::write(path, bytes)?.commit()
+}
+
+/// A file written in full next to its destination but not yet moved there: [`Staged::commit`]
+/// renames it into place; dropped uncommitted, it is removed. Staging every output of a run
+/// and committing them together ([`commit_all`]) means a run that fails leaves none of them.
+#[derive(Debug)]
+pub struct Staged {
+    tmp: tempfile::TempPath,
+    path: std::path::PathBuf,
+}
+
+impl Staged {
+    /// Writes `bytes` to a temporary file in `path`'s folder (flushed to disk, with the
+    /// permissions `path` will have).
+    pub fn write(path: &Path, bytes: &[u8]) -> Result<Self> {
+        let io = |error| NamError::Io {
+            path: path.to_path_buf(),
+            error,
+        };
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let mut tmp = tempfile::Builder::new()
+            .prefix(".nam-")
+            .suffix(".tmp")
+            .tempfile_in(dir)
+            .map_err(io)?;
+        tmp.write_all(bytes)
+            .and_then(|()| final_permissions(path, tmp.as_file()))
+            .and_then(|perm| tmp.as_file().set_permissions(perm))
+            .and_then(|()| tmp.as_file().sync_all())
+            .map_err(io)?;
+        Ok(Self {
+            tmp: tmp.into_temp_path(),
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Where it goes.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Renames the file into place.
+    pub fn commit(self) -> Result<()> {
+        self.tmp.persist(&self.path).map_err(|e| NamError::Io {
+            path: self.path.clone(),
+            error: e.error,
+        })
+    }
+}
+
+/// Commits every staged file in order; if one fails, the ones already moved are removed
+/// again (a file they replaced is not restored) and the rest are dropped, so the outputs of
+/// a failed run are all absent.
+pub fn commit_all(staged: Vec<Staged>) -> Result<()> {
+    let mut done: Vec<std::path::PathBuf> = Vec::with_capacity(staged.len());
+    for file in staged {
+        let path = file.path().to_path_buf();
+        if let Err(e) = file.commit() {
+            for p in &done {
+                let _ = std::fs::remove_file(p);
+            }
+            return Err(e);
+        }
+        done.push(path);
+    }
     Ok(())
 }
 

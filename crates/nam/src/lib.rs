@@ -44,7 +44,7 @@ mod sampling;
 pub use brdf::{BrdfQuery, BrdfSample, GPU_MIN_QUERIES, NeuralBrdf};
 pub use error::{NamError, Result};
 pub use frame::ShadingFrame;
-pub use io::{MAX_MATERIAL_FILE_BYTES, MAX_MODEL_FILE_BYTES, write_atomic};
+pub use io::{MAX_MATERIAL_FILE_BYTES, MAX_MODEL_FILE_BYTES, Staged, commit_all, write_atomic};
 pub use material::NeuralMaterial;
 #[cfg(feature = "default-model")]
 pub use model::EMBEDDED_MODEL;

@@ -3,9 +3,7 @@
 
 use crate::args::{parse_fov, parse_non_negative, parse_vec3};
 use crate::backend::ModelArgs;
-use crate::output::{
-    check_distinct, check_output_dir, check_output_path, write_atomic, write_linear_rgb,
-};
+use crate::output::{check_distinct, check_output_dir, check_output_path, stage_linear_rgb};
 use crate::progress;
 use crate::sweep::{LightSpec, contact_sheet, encode_gif, expand, frame_path, parse_light_spec};
 use anyhow::{Context, Result, bail};
@@ -100,11 +98,13 @@ pub fn run(args: &Args) -> Result<()> {
         "relighting",
         scenes.len() as f64 * seconds_per_frame(h),
     );
+    // Every output is staged next to its destination and moved into place only when all of
+    // them are written: a run that fails (disk full at frame 2, a bad --sheet) leaves none.
+    let mut staged = Vec::with_capacity(outputs.len());
     let mut frames = Vec::with_capacity(scenes.len());
     for (k, scene) in scenes.iter().enumerate() {
         let img = relight(&model, &material, scene)?;
-        let path = frame_path(&args.output, k, scenes.len());
-        write_linear_rgb(&path, &img)?;
+        staged.push(stage_linear_rgb(&outputs[k], &img)?);
         if args.sheet.is_some() || args.gif.is_some() {
             frames.push(img);
         }
@@ -112,11 +112,15 @@ pub fn run(args: &Args) -> Result<()> {
     }
     bar.finish_and_clear();
     if let Some(sheet) = &args.sheet {
-        write_linear_rgb(sheet, &contact_sheet(&frames)?)?;
+        staged.push(stage_linear_rgb(sheet, &contact_sheet(&frames)?)?);
     }
     if let Some(gif) = &args.gif {
-        write_atomic(gif, &encode_gif(&frames, args.gif_delay)?)?;
+        staged.push(nam::Staged::write(
+            gif,
+            &encode_gif(&frames, args.gif_delay)?,
+        )?);
     }
+    nam::commit_all(staged)?;
     if scenes.len() > 1 {
         eprintln!(
             "wrote {} frames in {:.1} s: {} … {}",
