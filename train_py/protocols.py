@@ -122,7 +122,7 @@ _MASK64 = (1 << 64) - 1
 
 
 class SplitMix64:
-    """nam-ggx's ``SplitMix64`` (``crates/nam-ggx/src/protocol.rs``), bit for bit."""
+    """nam-weights' ``SplitMix64`` (``crates/nam-weights/src/weights.rs``, nam-ggx's protocol stream), bit for bit."""
 
     def __init__(self, seed: int):
         self.state = seed & _MASK64

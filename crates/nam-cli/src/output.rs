@@ -111,11 +111,11 @@ pub fn stage_linear_rgb(path: &Path, img: &RgbImage<f32>) -> Result<nam::Staged>
 }
 
 fn encode_linear_rgb(path: &Path, img: &RgbImage<f32>) -> Result<Vec<u8>> {
-    Ok(match OutputFormat::from_path(path)? {
+    match OutputFormat::from_path(path)? {
         OutputFormat::Png => encode_png(&img.map(srgb_encode), PngDepth::Eight),
         OutputFormat::Exr => encode_exr(img),
     }
-    .with_context(|| format!("encoding {}", path.display()))?)
+    .with_context(|| format!("encoding {}", path.display()))
 }
 
 /// Writes `bytes` to `path` atomically (see [`nam::write_atomic`]).

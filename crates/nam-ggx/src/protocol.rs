@@ -1,7 +1,7 @@
 //! The evaluation protocols of the paper (§3.1 and §4), as seeded, reproducible samplers of
 //! light and view positions (surface frame, material half-widths).
 //!
-//! The stream is [`SplitMix64`], uniforms are its top 53 bits, normal variates use Box–Muller
+//! The stream is nam-weights' [`SplitMix64`], uniforms are its top 53 bits, normal variates use Box–Muller
 //! on two uniforms, and every draw happens in a fixed order: a definition small enough that
 //! `train_py/protocols.py` (`SeededPairs`) re-implements it draw for draw, so the Rust report
 //! and `train_py.evaluate` score the same light/view pairs (pinned by
@@ -10,6 +10,7 @@
 use crate::geometry::{CAPTURE_DISTANCE, capture_position, direction};
 use crate::vec3::{Vec3, Vec3d};
 use glam::DVec3;
+pub use nam_weights::SplitMix64;
 
 /// Radius of the hemisphere of the Hemisphere protocol (paper §4: 4.0).
 pub const HEMISPHERE_RADIUS: f64 = 4.0;
@@ -68,36 +69,6 @@ impl std::str::FromStr for Protocol {
     }
 }
 
-/// SplitMix64 (Steele, Lea & Flood 2014), the seeding generator of the xoshiro family: state
-/// `x += 0x9e3779b97f4a7c15`, output a mix of `x`. Written out here rather than taken from
-/// `rand`: its value conversions are not stable across versions, and Python must repeat this
-/// stream bit for bit.
-#[derive(Debug, Clone)]
-pub struct SplitMix64 {
-    state: u64,
-}
-
-impl SplitMix64 {
-    /// The generator whose state starts at `seed`.
-    pub fn new(seed: u64) -> Self {
-        Self { state: seed }
-    }
-
-    /// The next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform on [0, 1): the top 53 bits times 2⁻⁵³.
-    pub fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-}
-
 /// A seeded sampler of light/view configurations.
 #[derive(Debug, Clone)]
 pub struct ProtocolSampler {
@@ -110,7 +81,7 @@ impl ProtocolSampler {
     pub fn new(protocol: Protocol, seed: u64) -> Self {
         Self {
             protocol,
-            rng: SplitMix64::new(seed),
+            rng: SplitMix64(seed),
         }
     }
 
@@ -182,11 +153,11 @@ mod tests {
     #[test]
     fn splitmix64_gives_the_published_sequence() {
         // The first outputs from state 0 (the reference C code of Vigna's xoshiro page).
-        let mut g = SplitMix64::new(0);
-        assert_eq!(g.next_u64(), 0xe220_a839_7b1d_cdaf);
-        assert_eq!(g.next_u64(), 0x6e78_9e6a_a1b9_65f4);
-        assert_eq!(g.next_u64(), 0x06c4_5d18_8009_454f);
-        let u = SplitMix64::new(0).uniform();
+        let mut g = SplitMix64(0);
+        assert_eq!(g.next(), 0xe220_a839_7b1d_cdaf);
+        assert_eq!(g.next(), 0x6e78_9e6a_a1b9_65f4);
+        assert_eq!(g.next(), 0x06c4_5d18_8009_454f);
+        let u = SplitMix64(0).uniform();
         assert_eq!(
             u,
             (0xe220_a839_7b1d_cdafu64 >> 11) as f64 / 9_007_199_254_740_992.0

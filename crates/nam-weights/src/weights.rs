@@ -208,8 +208,11 @@ impl<'a> Scope<'a> {
     }
 }
 
-/// SplitMix64: a tiny, seedable stream for test weights and the fuzz corpora of the
-/// workspace's tests (not for cryptography). The field is the state; seed it directly.
+/// SplitMix64 (Steele, Lea & Flood 2014): a tiny, seedable stream for test weights, the fuzz
+/// corpora of the workspace's tests and the evaluation's light/view pairs (nam-ggx's
+/// `ProtocolSampler`, which `train_py/protocols.py` repeats bit for bit); not for
+/// cryptography. The field is the state; seed it directly. Written out rather than taken from
+/// `rand`, whose value conversions are not stable across versions.
 #[derive(Debug, Clone)]
 pub struct SplitMix64(pub u64);
 
@@ -232,6 +235,11 @@ impl SplitMix64 {
     /// A uniformly chosen element of a non-empty slice.
     pub fn pick<'a, T>(&mut self, xs: &'a [T]) -> &'a T {
         &xs[self.below(xs.len())]
+    }
+
+    /// Uniform on [0, 1): the top 53 bits times 2⁻⁵³.
+    pub fn uniform(&mut self) -> f64 {
+        (self.next() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 
     /// Uniform in [-1, 1).
