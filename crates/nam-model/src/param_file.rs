@@ -1,17 +1,40 @@
 //! The `.nam` param-map file (docs/FORMAT.md): safetensors with one tensor
-//! `params` `[H, W, C]` F32 and a `config` JSON in `__metadata__`.
+//! `params` `[H, W, C]` (F16 by default, F32 on request or when a value exceeds f16's range)
+//! and a `config` JSON in `__metadata__`.
 
 use std::collections::BTreeMap;
 
-use nam_weights::{Tensor, TensorFile, write_safetensors};
+use nam_weights::{StoreAs, Tensor, TensorFile, write_safetensors_as};
 
 use crate::error::{ModelError, Result};
 use crate::maps::ParamMap;
 
 impl ParamMap {
-    /// Serialises as a `.nam` file; `model_sha256` identifies the weights that made it.
-    /// A map whose `data` is not `height · width · channels` values is an error.
+    /// Serialises as a `.nam` file with F16 params (half the size of F32; relighting from
+    /// them differs by a log-L1 of ~1e-5, see docs/FORMAT.md), or F32 when a value lies beyond
+    /// f16's ±65504; `model_sha256` identifies the weights that made it.
     pub fn to_nam_bytes(&self, model_sha256: &str) -> Result<Vec<u8>> {
+        let fits_f16 = self.data.iter().all(|v| v.abs() <= StoreAs::F16.largest());
+        self.to_nam_bytes_as(
+            model_sha256,
+            if fits_f16 { StoreAs::F16 } else { StoreAs::F32 },
+        )
+    }
+
+    /// [`Self::to_nam_bytes`] with the params stored as `dtype` (F16 only when every value
+    /// fits: an out-of-range value is an error rather than ±Inf). A map whose `data` is not
+    /// `height · width · channels` values is an error.
+    pub fn to_nam_bytes_as(&self, model_sha256: &str, dtype: StoreAs) -> Result<Vec<u8>> {
+        if let Some(i) = self.data.iter().position(|v| v.abs() > dtype.largest()) {
+            return Err(ModelError::ParamFile {
+                file: "(new .nam)".into(),
+                reason: format!(
+                    "param {} at flat index {i} does not fit {dtype:?} (±{})",
+                    self.data[i],
+                    dtype.largest()
+                ),
+            });
+        }
         let config = serde_json::json!({
             "format": "nam-params", "version": 1,
             "height": self.height, "width": self.width, "model_sha256": model_sha256,
@@ -27,7 +50,7 @@ impl ParamMap {
             found: self.data.len(),
         })?;
         let tensors = BTreeMap::from([("params".to_string(), params)]);
-        Ok(write_safetensors(&tensors, &meta)?)
+        Ok(write_safetensors_as(&tensors, &meta, dtype)?)
     }
 
     /// Parses a `.nam` file; `label` names it in errors. Returns the map and the

@@ -174,10 +174,34 @@ fn param_map_roundtrips_through_nam_bytes_and_rejects_mismatches() {
         channels: 64,
         data: (0..384).map(|i| i as f32 / 7.0).collect(),
     };
+    // Default: F16, each value within f16's relative rounding (2^-11) and half the bytes.
     let bytes = map.to_nam_bytes("abc123").unwrap();
     let (back, sha) = ParamMap::from_nam_bytes(&bytes, "m.nam").unwrap();
-    assert_eq!(back, map);
+    assert_eq!((back.height, back.width, back.channels), (2, 3, 64));
+    assert!(
+        back.data
+            .iter()
+            .zip(&map.data)
+            .all(|(a, b)| (a - b).abs() <= b.abs() * 4.9e-4)
+    );
     assert_eq!(sha, "abc123");
+    let exact = map
+        .to_nam_bytes_as("abc123", nam_weights::StoreAs::F32)
+        .unwrap();
+    assert_eq!(ParamMap::from_nam_bytes(&exact, "m.nam").unwrap().0, map);
+    assert!(bytes.len() * 2 < exact.len() + 1024);
+    // A value beyond f16's range: stored as F32 by default, an error when F16 is demanded.
+    let mut wide = map.clone();
+    wide.data[5] = 1e5;
+    let auto = wide.to_nam_bytes("abc123").unwrap();
+    assert_eq!(ParamMap::from_nam_bytes(&auto, "w.nam").unwrap().0, wide);
+    let err = wide
+        .to_nam_bytes_as("abc123", nam_weights::StoreAs::F16)
+        .unwrap_err();
+    assert!(
+        err.to_string().contains("flat index 5 does not fit F16"),
+        "{err}"
+    );
     // A model file is not a param map.
     let model = weights().to_safetensors_bytes().unwrap();
     assert!(matches!(

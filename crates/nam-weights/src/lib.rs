@@ -43,5 +43,7 @@ pub use config::{LogMode, MAX_WIDTH, ModelConfig, Slopes};
 pub use error::{Result, WeightsError};
 pub use layout::{DirectionWork, RenderWork, UNET_MULTIPLE, expected_tensors};
 pub use radiance::radiance_from_log;
-pub use tensor_file::{Dtype, MAX_HEADER_BYTES, Tensor, TensorFile, write_safetensors};
+pub use tensor_file::{
+    Dtype, MAX_HEADER_BYTES, StoreAs, Tensor, TensorFile, write_safetensors, write_safetensors_as,
+};
 pub use weights::{Scope, SplitMix64, Weights};

@@ -98,11 +98,15 @@ impl Tensor {
 }
 
 /// A [`Tensor`] as the `safetensors` crate writes it: F32, little-endian.
-struct F32View<'a>(&'a Tensor);
+/// A tensor as stored: F32, or F16 (rounded to nearest; the caller checks the range).
+struct StoredView<'a>(&'a Tensor, StoreAs);
 
-impl View for F32View<'_> {
+impl View for StoredView<'_> {
     fn dtype(&self) -> safetensors::Dtype {
-        safetensors::Dtype::F32
+        match self.1 {
+            StoreAs::F32 => safetensors::Dtype::F32,
+            StoreAs::F16 => safetensors::Dtype::F16,
+        }
     }
 
     fn shape(&self) -> &[usize] {
@@ -110,11 +114,43 @@ impl View for F32View<'_> {
     }
 
     fn data(&self) -> Cow<'_, [u8]> {
-        Cow::Owned(self.0.data.iter().flat_map(|v| v.to_le_bytes()).collect())
+        Cow::Owned(match self.1 {
+            StoreAs::F32 => self.0.data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            StoreAs::F16 => self
+                .0
+                .data
+                .iter()
+                .flat_map(|v| half::f16::from_f32(*v).to_le_bytes())
+                .collect(),
+        })
     }
 
     fn data_len(&self) -> usize {
-        self.0.data.len() * 4
+        self.0.data.len()
+            * match self.1 {
+                StoreAs::F32 => 4,
+                StoreAs::F16 => 2,
+            }
+    }
+}
+
+/// The dtype [`write_safetensors_as`] stores tensors in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StoreAs {
+    /// IEEE binary32: exact.
+    F32,
+    /// IEEE binary16: half the bytes; values rounded to 11 significant bits, and beyond
+    /// ±65504 they would become ±Inf, so callers store F16 only what fits.
+    F16,
+}
+
+impl StoreAs {
+    /// The largest magnitude stored as a finite value (f16: 65504).
+    pub fn largest(self) -> f32 {
+        match self {
+            StoreAs::F32 => f32::MAX,
+            StoreAs::F16 => half::f16::MAX.to_f32(),
+        }
     }
 }
 
@@ -326,12 +362,24 @@ pub fn write_safetensors(
     tensors: &BTreeMap<String, Tensor>,
     metadata: &BTreeMap<String, String>,
 ) -> Result<Vec<u8>> {
+    write_safetensors_as(tensors, metadata, StoreAs::F32)
+}
+
+/// [`write_safetensors`] with every tensor stored as `dtype`.
+pub fn write_safetensors_as(
+    tensors: &BTreeMap<String, Tensor>,
+    metadata: &BTreeMap<String, String>,
+    dtype: StoreAs,
+) -> Result<Vec<u8>> {
     let metadata = (!metadata.is_empty()).then(|| {
         metadata
             .iter()
             .map(|(k, v)| (k.clone(), v.clone()))
             .collect()
     });
-    safetensors::serialize(tensors.iter().map(|(n, t)| (n, F32View(t))), metadata)
-        .map_err(|e| WeightsError::Serialize(e.to_string()))
+    safetensors::serialize(
+        tensors.iter().map(|(n, t)| (n, StoredView(t, dtype))),
+        metadata,
+    )
+    .map_err(|e| WeightsError::Serialize(e.to_string()))
 }

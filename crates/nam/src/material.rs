@@ -51,9 +51,18 @@ impl NeuralMaterial {
         &self.model_fingerprint
     }
 
-    /// Serialises to `.nam` bytes (safetensors, one F32 tensor `params` [H, W, 64]).
+    /// Serialises to `.nam` bytes (safetensors, one tensor `params` [H, W, 64], F16: half the
+    /// bytes of F32, relights within a log-L1 of ~1e-5; F32 if a value exceeds f16's range).
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
         Ok(self.params.to_nam_bytes(&self.model_fingerprint)?)
+    }
+
+    /// [`Self::to_bytes`] with the params stored exactly (F32, twice the bytes): relighting
+    /// the loaded material is then bit-identical to relighting this one.
+    pub fn to_bytes_exact(&self) -> Result<Vec<u8>> {
+        Ok(self
+            .params
+            .to_nam_bytes_as(&self.model_fingerprint, nam_weights::StoreAs::F32)?)
     }
 
     /// Parses `.nam` bytes; `label` names the source in errors.
@@ -73,5 +82,10 @@ impl NeuralMaterial {
     /// an interrupted write never leaves a half-written file under `path`.
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
         crate::io::write_atomic(path.as_ref(), &self.to_bytes()?)
+    }
+
+    /// [`Self::save`] with exact F32 params ([`Self::to_bytes_exact`]).
+    pub fn save_exact(&self, path: impl AsRef<Path>) -> Result<()> {
+        crate::io::write_atomic(path.as_ref(), &self.to_bytes_exact()?)
     }
 }

@@ -76,9 +76,14 @@ fn material_round_trips_through_nam_file_and_rejects_other_models() {
     let m = grey_material(&model, 12);
     let dir = tempfile::tempdir().expect("tmp");
     let path = dir.path().join("m.nam");
-    m.save(&path).expect("save");
+    m.save_exact(&path).expect("save");
     let back = NeuralMaterial::load(&path).expect("load");
     assert_eq!(back, m);
+    // The default save stores f16 params: the same material within f16 rounding.
+    m.save(&path).expect("save f16");
+    let half = NeuralMaterial::load(&path).expect("load f16");
+    let (a, b) = (&half.params().data, &m.params().data);
+    assert!(a.iter().zip(b).all(|(x, y)| (x - y).abs() <= y.abs() * 4.9e-4 + 6e-8));
     back.check_model(&model).expect("same model");
     let other = NeuralModel::from_weights(
         nam_weights::Weights::random(model.config().clone(), 7).expect("random"),
