@@ -83,7 +83,11 @@ fn material_round_trips_through_nam_file_and_rejects_other_models() {
     m.save(&path).expect("save f16");
     let half = NeuralMaterial::load(&path).expect("load f16");
     let (a, b) = (&half.params().data, &m.params().data);
-    assert!(a.iter().zip(b).all(|(x, y)| (x - y).abs() <= y.abs() * 4.9e-4 + 6e-8));
+    assert!(
+        a.iter()
+            .zip(b)
+            .all(|(x, y)| (x - y).abs() <= y.abs() * 4.9e-4 + 6e-8)
+    );
     back.check_model(&model).expect("same model");
     let other = NeuralModel::from_weights(
         nam_weights::Weights::random(model.config().clone(), 7).expect("random"),
