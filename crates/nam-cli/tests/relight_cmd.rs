@@ -624,18 +624,8 @@ fn precision_names_what_runs_and_falls_back_to_f32_with_a_note() {
     );
     assert!(bf16.iter().all(|v| v.is_finite()));
     // The old flag, which meant bf16 on the CPU, is gone rather than misleading.
-    let o = run(&[
-        "relight",
-        s(&photo),
-        "--f16",
-        "-o",
-        s(&dir.path().join("x.exr")),
-    ]);
-    assert!(
-        !o.status.success() && stderr(&o).contains("--f16"),
-        "{}",
-        stderr(&o)
-    );
+    let x = dir.path().join("x.exr");
+    expect_failure(&["relight", s(&photo), "--f16", "-o", s(&x)], &x, "--f16");
 }
 
 /// Issue 19 classes 1 and 9: scenes whose render would overflow f32 (intensity 1e39, falloff

@@ -32,8 +32,7 @@ impl Photo {
     /// The image must be square (see [`Photo::from_linear_rgb`]); use
     /// [`Photo::load_cropped`] to accept any aspect ratio.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
-        let (h, w, rgb) = read_linear(path.as_ref())?;
-        Self::from_linear_rgb(h, w, rgb).map_err(|e| e.in_file(path.as_ref()))
+        Self::load_resized(path, false, None)
     }
 
     /// Like [`Photo::load`], but centre-crops a non-square image to its shorter side first.
