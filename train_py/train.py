@@ -33,7 +33,20 @@ from torch import nn
 from . import capture, gen, ggx, materials, protocols
 from .evaluate import evaluate_protocols
 from .export import freeze_batchnorm, unfold_model
-from .model import CONFIGS, IN_CHANNELS, PARAM_CHANNELS, NamModel, positional_encoding, query_dirs
+from .model import (
+    CONFIGS,
+    IN_CHANNELS,
+    PARAM_CHANNELS,
+    Affine,
+    BasicBlock,
+    Conv,
+    ConvBN,
+    HAConv,
+    NamModel,
+    ReverseBlock,
+    positional_encoding,
+    query_dirs,
+)
 
 #: Guards the inverse param-norm sampling weights against an all-zero parameter vector.
 NORM_EPS = 1e-6
@@ -92,6 +105,34 @@ def bottleneck_excess(e4: torch.Tensor, limit: float) -> torch.Tensor:
     BatchNorms frozen (fine-tuning a model file) nothing else bounds them, and one fine-tune drove
     them to 5e4 on the real photos, within 1.3× of f16's largest value (65504)."""
     return torch.relu(e4.float().abs() - limit).mean() / limit
+
+
+class ActivationExcess:
+    """``train --activation-limit``: the sum of :func:`bottleneck_excess` over every U-Net tensor
+    that the f16 trace (``examples/activation_range``) sees — conv, BatchNorm, HA-Conv and block
+    outputs — while the U-Net trains. Bounding only ``e4`` let a BatchNorm inside the deepest
+    block grow to 7498 in a longer fine-tune (9× below f16's largest value), so every tensor gets
+    the same bound."""
+
+    def __init__(self, unet: nn.Module, limit: float):
+        self.unet = unet
+        self.limit = limit
+        self.total: torch.Tensor | None = None
+        kinds = (Conv, ConvBN, Affine, nn.BatchNorm2d, HAConv, BasicBlock, ReverseBlock)
+        for module in unet.modules():
+            if isinstance(module, kinds):
+                module.register_forward_hook(self._hook)
+
+    def _hook(self, _module: nn.Module, _inputs, output: torch.Tensor) -> None:
+        # ``unet.training``, not the module's: frozen BatchNorms are in eval mode but still count.
+        if self.unet.training and torch.is_grad_enabled():
+            excess = bottleneck_excess(output, self.limit)
+            self.total = excess if self.total is None else self.total + excess
+
+    def take(self) -> torch.Tensor | None:
+        """The penalty summed since the last call (``None`` when nothing was traced), then reset."""
+        total, self.total = self.total, None
+        return total
 
 
 def select_pixels(params: torch.Tensor, k: int, frac: float, generator: torch.Generator | None) -> torch.Tensor:
@@ -312,6 +353,13 @@ def parse_args(argv=None):
         "flat) so every activation keeps f16 headroom (0: off)",
     )
     ap.add_argument(
+        "--activation-limit",
+        type=float,
+        default=0.0,
+        help="penalise every U-Net activation (conv, BatchNorm, HA-Conv and block outputs) above this "
+        "in magnitude, so f16 storage keeps 65504/limit headroom (0: off)",
+    )
+    ap.add_argument(
         "--input-skip",
         action="store_true",
         help="the U-Net head also sees the network input (a direct colour path, not in the paper); "
@@ -403,6 +451,7 @@ def train(args) -> dict:
     bank = materials.MaterialBank("train", Path(args.materials_root)) if args.real_frac > 0 else None
     trainer = TrainStep(model, straight_through=not args.no_straight_through, shared_geometry=args.shared_geometry)
     step_module: nn.Module = trainer
+    activations = ActivationExcess(model.est, args.activation_limit) if args.activation_limit else None
     if distributed:
         step_module = nn.parallel.DistributedDataParallel(step_module)
 
@@ -460,6 +509,8 @@ def train(args) -> dict:
             loss = loss + args.latent_weight * latent_l1(trainer.last_params, encoder, maps)
         if args.bottleneck_limit:
             loss = loss + bottleneck_excess(model.est.last_bottleneck, args.bottleneck_limit)
+        if activations is not None and (excess := activations.take()) is not None:
+            loss = loss + excess
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -9,9 +9,10 @@ import torch
 
 from train_py import ggx, protocols
 from train_py.evaluate import evaluate_protocols, ssim
-from train_py.export import fold_state_dict, save_model, unfold_model
+from train_py.export import fold_state_dict, freeze_batchnorm, save_model, unfold_model
 from train_py.model import CONFIGS, NamModel
 from train_py.train import (
+    ActivationExcess,
     TrainStep,
     bottleneck_excess,
     chroma_l1,
@@ -309,3 +310,29 @@ def test_bottleneck_penalty_acts_only_above_the_limit_and_only_while_training():
     with torch.no_grad():
         m.estimate(x)
     assert m.est.last_bottleneck is None
+
+
+def test_activation_penalty_sees_every_unet_tensor_and_only_while_training():
+    torch.manual_seed(0)
+    m = NamModel(CONFIGS["tiny"])
+    x = torch.rand(1, 4, 16, 16) * 50
+    penalty = ActivationExcess(m.est, 1e-3)
+    m.train()
+    m.estimate(x)
+    loss = penalty.take()
+    assert loss is not None and float(loss) > 0 and penalty.take() is None
+    loss.backward()
+    # Every conv of the U-Net gets a gradient from the penalty alone, BatchNorms frozen or not.
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for n, p in m.est.named_parameters() if "weight" in n)
+    freeze_batchnorm(m)
+    m.estimate(x)
+    assert penalty.take() is not None
+    m.eval()
+    with torch.no_grad():
+        m.estimate(x)
+    assert penalty.take() is None
+    # A limit above every activation costs nothing.
+    loose = ActivationExcess(m.est, 1e9)
+    m.train()
+    m.estimate(x)
+    assert float(loose.take()) == 0.0
