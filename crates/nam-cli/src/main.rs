@@ -7,6 +7,7 @@
 mod args;
 mod backend;
 mod cmd;
+mod forecast;
 mod output;
 mod progress;
 mod sweep;

@@ -4,27 +4,70 @@
 
 use std::collections::BTreeMap;
 
-use nam_weights::{StoreAs, Tensor, TensorFile, write_safetensors_as};
+use std::path::Path;
+
+use nam_weights::{
+    StoreAs, Tensor, TensorFile, TensorView, write_safetensors_as, write_safetensors_file,
+};
 
 use crate::error::{ModelError, Result};
 use crate::maps::ParamMap;
 
+/// The name of the one tensor in a `.nam` file.
+const PARAMS_TENSOR: &str = "params";
+
 impl ParamMap {
     /// Serialises as a `.nam` file with F16 params (half the size of F32; relighting from
     /// them differs by a log-L1 of ~1e-5, see docs/FORMAT.md), or F32 when a value lies beyond
-    /// f16's ±65504; `model_sha256` identifies the weights that made it.
+    /// f16's ±65504 ([`Self::nam_dtype`]); `model_sha256` identifies the weights that made it.
     pub fn to_nam_bytes(&self, model_sha256: &str) -> Result<Vec<u8>> {
+        self.to_nam_bytes_as(model_sha256, self.nam_dtype())
+    }
+
+    /// The dtype [`Self::to_nam_bytes`] stores: F16 when every value fits it, else F32.
+    pub fn nam_dtype(&self) -> StoreAs {
         let fits_f16 = self.data.iter().all(|v| v.abs() <= StoreAs::F16.largest());
-        self.to_nam_bytes_as(
-            model_sha256,
-            if fits_f16 { StoreAs::F16 } else { StoreAs::F32 },
-        )
+        if fits_f16 { StoreAs::F16 } else { StoreAs::F32 }
     }
 
     /// [`Self::to_nam_bytes`] with the params stored as `dtype` (F16 only when every value
     /// fits: an out-of-range value is an error rather than ±Inf). A map whose `data` is not
     /// `height · width · channels` values is an error.
     pub fn to_nam_bytes_as(&self, model_sha256: &str, dtype: StoreAs) -> Result<Vec<u8>> {
+        let (meta, shape) = self.nam_header(model_sha256, dtype)?;
+        let params = Tensor::new(shape, self.data.clone()).expect("checked by nam_header");
+        let tensors = BTreeMap::from([(PARAMS_TENSOR.to_string(), params)]);
+        Ok(write_safetensors_as(&tensors, &meta, dtype)?)
+    }
+
+    /// [`Self::to_nam_bytes_as`] streamed into the file at `path` (replaced through a sibling
+    /// temporary file): it needs no copy of the params and no buffer of the whole file, only
+    /// the stored bytes (half the params' memory for F16).
+    pub fn write_nam_file(&self, path: &Path, model_sha256: &str, dtype: StoreAs) -> Result<()> {
+        let (meta, shape) = self.nam_header(model_sha256, dtype)?;
+        let params = TensorView::new(&shape, &self.data).expect("checked by nam_header");
+        let tensors = BTreeMap::from([(PARAMS_TENSOR.to_string(), params)]);
+        Ok(write_safetensors_file(path, &tensors, &meta, dtype)?)
+    }
+
+    /// The `.nam` metadata and the params' shape, after checking that `data` has that shape
+    /// and that every value fits `dtype`.
+    fn nam_header(
+        &self,
+        model_sha256: &str,
+        dtype: StoreAs,
+    ) -> Result<(BTreeMap<String, String>, Vec<usize>)> {
+        let shape = vec![self.height, self.width, self.channels];
+        if TensorView::new(&shape, &self.data).is_none() {
+            return Err(ModelError::Size {
+                what: "ParamMap data (height · width · channels)",
+                expected: self
+                    .height
+                    .saturating_mul(self.width)
+                    .saturating_mul(self.channels),
+                found: self.data.len(),
+            });
+        }
         if let Some(i) = self.data.iter().position(|v| v.abs() > dtype.largest()) {
             return Err(ModelError::ParamFile {
                 file: "(new .nam)".into(),
@@ -40,17 +83,7 @@ impl ParamMap {
             "height": self.height, "width": self.width, "model_sha256": model_sha256,
         });
         let meta = BTreeMap::from([("config".to_string(), config.to_string())]);
-        let shape = vec![self.height, self.width, self.channels];
-        let params = Tensor::new(shape, self.data.clone()).ok_or(ModelError::Size {
-            what: "ParamMap data (height · width · channels)",
-            expected: self
-                .height
-                .saturating_mul(self.width)
-                .saturating_mul(self.channels),
-            found: self.data.len(),
-        })?;
-        let tensors = BTreeMap::from([("params".to_string(), params)]);
-        Ok(write_safetensors_as(&tensors, &meta, dtype)?)
+        Ok((meta, shape))
     }
 
     /// Parses a `.nam` file; `label` names it in errors. Returns the map and the
@@ -83,7 +116,7 @@ impl ParamMap {
         let (h, w) = (dim("height")?, dim("width")?);
         let t = f
             .tensors()
-            .get("params")
+            .get(PARAMS_TENSOR)
             .ok_or_else(|| bad("no tensor `params`".into()))?;
         let shape = t.shape();
         if shape.len() != 3 || shape[0] != h || shape[1] != w || h == 0 || w == 0 {

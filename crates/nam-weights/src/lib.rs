@@ -44,6 +44,7 @@ pub use error::{Result, WeightsError};
 pub use layout::{DirectionWork, RenderWork, UNET_MULTIPLE, expected_tensors};
 pub use radiance::radiance_from_log;
 pub use tensor_file::{
-    Dtype, MAX_HEADER_BYTES, StoreAs, Tensor, TensorFile, write_safetensors, write_safetensors_as,
+    Dtype, MAX_HEADER_BYTES, StoreAs, Tensor, TensorFile, TensorView, write_safetensors,
+    write_safetensors_as, write_safetensors_file,
 };
 pub use weights::{Scope, SplitMix64, Weights};

@@ -97,9 +97,34 @@ impl Tensor {
     }
 }
 
-/// A [`Tensor`] as the `safetensors` crate writes it: F32, little-endian.
-/// A tensor as stored: F32, or F16 (rounded to nearest; the caller checks the range).
-struct StoredView<'a>(&'a Tensor, StoreAs);
+/// A borrowed row-major `f32` tensor: what the writers serialise, without copying the values.
+#[derive(Debug, Clone, Copy)]
+pub struct TensorView<'a> {
+    shape: &'a [usize],
+    data: &'a [f32],
+}
+
+impl<'a> TensorView<'a> {
+    /// Borrows `data` as a tensor of `shape`; `None` when `data.len()` is not its product.
+    pub fn new(shape: &'a [usize], data: &'a [f32]) -> Option<Self> {
+        let n = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d))?;
+        (n == data.len()).then_some(Self { shape, data })
+    }
+}
+
+impl Tensor {
+    /// This tensor, borrowed.
+    pub fn view(&self) -> TensorView<'_> {
+        TensorView {
+            shape: &self.shape,
+            data: &self.data,
+        }
+    }
+}
+
+/// A tensor as the `safetensors` crate writes it: F32, or F16 (rounded to nearest; the caller
+/// checks the range), little-endian.
+struct StoredView<'a>(TensorView<'a>, StoreAs);
 
 impl View for StoredView<'_> {
     fn dtype(&self) -> safetensors::Dtype {
@@ -110,7 +135,7 @@ impl View for StoredView<'_> {
     }
 
     fn shape(&self) -> &[usize] {
-        &self.0.shape
+        self.0.shape
     }
 
     fn data(&self) -> Cow<'_, [u8]> {
@@ -371,15 +396,33 @@ pub fn write_safetensors_as(
     metadata: &BTreeMap<String, String>,
     dtype: StoreAs,
 ) -> Result<Vec<u8>> {
-    let metadata = (!metadata.is_empty()).then(|| {
+    let views = tensors
+        .iter()
+        .map(|(n, t)| (n, StoredView(t.view(), dtype)));
+    safetensors::serialize(views, header_metadata(metadata))
+        .map_err(|e| WeightsError::Serialize(e.to_string()))
+}
+
+/// [`write_safetensors_as`] of borrowed tensors, streamed into the file at `path` (the
+/// `safetensors` crate fills a sibling temporary file and renames it over `path`): beyond the
+/// tensors themselves it holds one tensor's stored bytes at a time, not the whole file.
+pub fn write_safetensors_file(
+    path: &Path,
+    tensors: &BTreeMap<String, TensorView<'_>>,
+    metadata: &BTreeMap<String, String>,
+    dtype: StoreAs,
+) -> Result<()> {
+    let views = tensors.iter().map(|(n, t)| (n, StoredView(*t, dtype)));
+    safetensors::serialize_to_file(views, header_metadata(metadata), path)
+        .map_err(|e| WeightsError::Serialize(format!("{}: {e}", path.display())))
+}
+
+/// The crate's `__metadata__` map (`None` when empty, so no empty object is written).
+fn header_metadata(metadata: &BTreeMap<String, String>) -> Option<HashMap<String, String>> {
+    (!metadata.is_empty()).then(|| {
         metadata
             .iter()
             .map(|(k, v)| (k.clone(), v.clone()))
             .collect()
-    });
-    safetensors::serialize(
-        tensors.iter().map(|(n, t)| (n, StoredView(t, dtype))),
-        metadata,
-    )
-    .map_err(|e| WeightsError::Serialize(e.to_string()))
+    })
 }

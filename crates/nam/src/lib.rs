@@ -48,7 +48,7 @@ pub use io::{MAX_MATERIAL_FILE_BYTES, MAX_MODEL_FILE_BYTES, Staged, commit_all, 
 pub use material::NeuralMaterial;
 #[cfg(feature = "default-model")]
 pub use model::EMBEDDED_MODEL;
-pub use model::{BackendKind, NeuralModel};
+pub use model::{BackendKind, COST_PROBE_SIDE, EstimateCost, NeuralModel};
 pub use nam_model::input::network_input;
 pub use nam_model::{Roi, Source};
 pub use photo::{MAX_PHOTO_SIDE, Photo};

@@ -80,12 +80,23 @@ impl NeuralMaterial {
 
     /// Writes a `.nam` file atomically (a temporary file in the same folder, then rename), so
     /// an interrupted write never leaves a half-written file under `path`.
+    /// The params are streamed to the file: saving needs no copy of them, only their stored
+    /// bytes (half the params' memory).
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
-        crate::io::write_atomic(path.as_ref(), &self.to_bytes()?)
+        self.write(path.as_ref(), self.params.nam_dtype())
     }
 
     /// [`Self::save`] with exact F32 params ([`Self::to_bytes_exact`]).
     pub fn save_exact(&self, path: impl AsRef<Path>) -> Result<()> {
-        crate::io::write_atomic(path.as_ref(), &self.to_bytes_exact()?)
+        self.write(path.as_ref(), nam_weights::StoreAs::F32)
+    }
+
+    fn write(&self, path: &Path, dtype: nam_weights::StoreAs) -> Result<()> {
+        crate::io::Staged::write_with(path, |tmp| {
+            Ok(self
+                .params
+                .write_nam_file(tmp, &self.model_fingerprint, dtype)?)
+        })?
+        .commit()
     }
 }

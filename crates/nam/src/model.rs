@@ -24,6 +24,21 @@ pub enum BackendKind {
     Gpu,
 }
 
+/// What estimating a photo will cost, forecast before running it
+/// ([`NeuralModel::estimate_cost`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EstimateCost {
+    /// Heap bytes held at the peak: the network input, the U-Net's working set and the param
+    /// map it returns (on a GPU: the input and the map; device memory is not counted).
+    pub peak_bytes: u64,
+    /// Seconds on this machine: a [`COST_PROBE_SIDE`]² estimate timed now, scaled by the pixel
+    /// count (the U-Net's work is linear in it). `None` on a GPU.
+    pub seconds: Option<f64>,
+}
+
+/// Side of the estimate [`NeuralModel::estimate_cost`] times (≈ 30 ms for C = 8 on 2 cores).
+pub const COST_PROBE_SIDE: usize = 128;
+
 /// A loaded neural appearance model: `M_est` and `M_render`.
 ///
 /// Load it once, estimate materials from photos ([`NeuralModel::estimate`]) and relight or
@@ -161,6 +176,33 @@ impl NeuralModel {
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         Some(f(&mut net))
+    }
+
+    /// Forecasts the memory and time of [`Self::estimate`] on a `side × side` photo; on the
+    /// CPU it runs one small estimate to time this machine.
+    pub fn estimate_cost(&self, side: usize) -> Result<EstimateCost> {
+        let cfg = self.config();
+        let pixels = (side * side) as u64;
+        let io_bytes = 4 * pixels * (cfg.in_channels + cfg.param_channels) as u64;
+        if self.backend() == BackendKind::Gpu {
+            return Ok(EstimateCost {
+                peak_bytes: io_bytes,
+                seconds: None,
+            });
+        }
+        let unet = &self.cpu.unet;
+        let n = COST_PROBE_SIDE;
+        let probe = vec![0.5f32; cfg.in_channels * n * n];
+        // The first run warms the thread pool and caches; the second is timed.
+        unet.estimate(&probe, n, n)?;
+        let started = std::time::Instant::now();
+        unet.estimate(&probe, n, n)?;
+        let probe_seconds = started.elapsed().as_secs_f64();
+        let padded = |s: usize| s.next_multiple_of(nam_weights::UNET_MULTIPLE) as f64;
+        Ok(EstimateCost {
+            peak_bytes: 4 * pixels * cfg.in_channels as u64 + unet.peak_bytes(side, side),
+            seconds: Some(probe_seconds * (padded(side) / padded(n)).powi(2)),
+        })
     }
 
     /// Estimates the neural material of a photo (runs `M_est` once), taken with the photo's

@@ -71,6 +71,23 @@ fn network_input_matches_torch_golden() {
 }
 
 #[test]
+fn estimate_cost_forecasts_memory_and_time_on_the_cpu() {
+    let model = tiny();
+    let cost = model.estimate_cost(64).expect("cost");
+    // At least the input and the param map; the U-Net's own working set on top.
+    let io = 64 * 64 * 4 * (4 + 64);
+    assert!(cost.peak_bytes > io, "{cost:?}");
+    let seconds = cost.seconds.expect("CPU backend: timed");
+    assert!(seconds.is_finite() && seconds > 0.0, "{cost:?}");
+    // Four times the pixels: at least three more param maps and inputs.
+    let big = model.estimate_cost(128).expect("cost");
+    assert!(
+        big.peak_bytes > cost.peak_bytes + 3 * io,
+        "{big:?} vs {cost:?}"
+    );
+}
+
+#[test]
 fn material_round_trips_through_nam_file_and_rejects_other_models() {
     let model = tiny();
     let m = grey_material(&model, 12);
@@ -80,7 +97,16 @@ fn material_round_trips_through_nam_file_and_rejects_other_models() {
     let back = NeuralMaterial::load(&path).expect("load");
     assert_eq!(back, m);
     // The default save stores f16 params: the same material within f16 rounding.
+    assert_eq!(
+        std::fs::read(&path).expect("read"),
+        m.to_bytes_exact().expect("bytes")
+    );
     m.save(&path).expect("save f16");
+    // Streamed to the file, the same bytes as serialised in memory.
+    assert_eq!(
+        std::fs::read(&path).expect("read"),
+        m.to_bytes().expect("bytes")
+    );
     let half = NeuralMaterial::load(&path).expect("load f16");
     let (a, b) = (&half.params().data, &m.params().data);
     assert!(

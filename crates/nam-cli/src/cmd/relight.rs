@@ -240,6 +240,7 @@ pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Resu
             );
         }
     }
+    crate::forecast::note_estimate_cost(model, photo.side())?;
     Ok(model.estimate(&photo)?)
 }
 

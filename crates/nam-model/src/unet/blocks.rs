@@ -88,6 +88,7 @@ impl Ha {
             row[feat0..feat0 + co].iter_mut().for_each(|w| *w *= s);
         }
         let main = self.main.run_with(&xc, &wt);
+        drop(xc);
         let (c1b, c1b_bias) = match &self.inc1a {
             Some(c) => (self.inc1b.run(&c.run(x)), vec![0.0; half]),
             // inc1a without its bias sits in columns 0..co of `main` (read as a

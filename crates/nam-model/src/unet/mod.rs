@@ -45,6 +45,8 @@ pub(crate) fn check_image(height: usize, width: usize) -> Result<()> {
 /// `M_est` on the CPU, packed for the fast path.
 #[derive(Debug, Clone)]
 pub struct UNet {
+    /// `C`, the width of the first level.
+    width: usize,
     in_channels: usize,
     /// The head sees `[decoder output, network input]` (`ModelConfig::input_skip`).
     input_skip: bool,
@@ -80,6 +82,7 @@ impl UNet {
             prev = w;
         }
         Ok(Self {
+            width: c,
             in_channels: cfg.in_channels,
             input_skip: cfg.input_skip,
             params: cfg.param_channels,
@@ -124,6 +127,22 @@ impl UNet {
         })
     }
 
+    /// Heap bytes [`Self::estimate`] holds at its peak for a `height × width` input, the returned
+    /// param map (f32) included, the input not. The full-resolution stages dominate: the
+    /// decoder's last BasicBlocks (input, centred copy, the fused GEMM's 7·C columns, inc1b and
+    /// output: ≈ 16·C floats per pixel) or the head (its 64 outputs and its input); each rayon
+    /// thread adds an im2col band. `tests/memory.rs` checks it against a counting allocator.
+    pub fn peak_bytes(&self, height: usize, width: usize) -> u64 {
+        let (hp, wp) = (pad_multiple(height), pad_multiple(width));
+        let (c, i) = (self.width, self.in_channels);
+        let head_in = c + if self.input_skip { i } else { 0 };
+        let per_pixel = (16 * c + 2 * i).max(self.params + head_in + i);
+        // Widest im2col row: the 7×7 stem and head, or a 3×3 conv over 12·C channels (dec2).
+        let row = (49 * head_in).max(49 * i).max(9 * 12 * c);
+        let bands = rayon::current_num_threads() * conv::BAND_PIXELS.max(wp) * row;
+        4 * (hp as u64 * wp as u64 * per_pixel as u64 + bands as u64)
+    }
+
     /// Runs `M_est` on the network input (CHW, `in_channels × height × width`,
     /// docs/FORMAT.md) and returns the param map (HWC). Any size: the input is
     /// replicate-padded bottom/right to a multiple of 8 and the output cropped.
@@ -149,6 +168,8 @@ impl UNet {
             c: ci,
             d,
         };
+        // Every activation is dropped as soon as its last reader has run: the peak is then
+        // one level's working set plus the skips and the param map (docs/perf/unet_memory.md).
         let stem = self.stem.run(&photo);
         // Encoder outputs e1..e4; e1..e3 are the decoder's skips.
         let mut skips: Vec<Hwc> = Vec::with_capacity(4);
@@ -157,36 +178,46 @@ impl UNet {
             let y = pair[1].run(&pair[0].run(input, eps, sl), eps, sl);
             skips.push(y);
         }
+        drop(stem);
         let mut x = skips.pop().expect("four encoder levels");
         x.d.iter_mut().for_each(|v| *v = v.atan());
         let x = self.dec1.1.run(&self.dec1.0.run(&x), eps, sl);
-        let x = self
-            .dec2
-            .1
-            .run(&self.dec2.0.run(&concat(&x, &skips[2])), eps, sl);
-        let x = self
-            .dec3
-            .1
-            .run(&self.dec3.0.run(&concat(&x, &skips[1])), eps, sl);
-        let x = self
-            .dec4
-            .1
-            .run(&self.dec4.0.run(&concat(&x, &skips[0]), eps, sl), eps, sl);
+        let up = |x: Hwc, skip: Hwc, (rev, basic): &(Reverse, Basic)| {
+            let cat = concat(&x, &skip);
+            drop((x, skip));
+            let r = rev.run(&cat);
+            drop(cat);
+            basic.run(&r, eps, sl)
+        };
+        let e3 = skips.pop().expect("e3");
+        let x = up(x, e3, &self.dec2);
+        let e2 = skips.pop().expect("e2");
+        let x = up(x, e2, &self.dec3);
+        let e1 = skips.pop().expect("e1");
+        let cat = concat(&x, &e1);
+        drop((x, e1));
+        let y = self.dec4.0.run(&cat, eps, sl);
+        drop(cat);
+        let x = self.dec4.1.run(&y, eps, sl);
+        drop(y);
         let out = if self.input_skip {
-            self.head.run(&concat(&x, &photo))
+            let cat = concat(&x, &photo);
+            drop((x, photo));
+            self.head.run(&cat)
         } else {
+            drop(photo);
             self.head.run(&x)
         };
         let pc = self.params;
-        let data = if (height, width) == (hp, wp) {
-            out.d
-        } else {
-            let mut data = Vec::with_capacity(height * width * pc);
-            for y in 0..height {
-                data.extend_from_slice(&out.d[y * wp * pc..(y * wp + width) * pc]);
+        // Crop the padding in place (rows move left; the spare capacity is at most 7 rows and
+        // columns of the padded map).
+        let mut data = out.d;
+        if (height, width) != (hp, wp) {
+            for y in 1..height {
+                data.copy_within(y * wp * pc..(y * wp + width) * pc, y * width * pc);
             }
-            data
-        };
+            data.truncate(height * width * pc);
+        }
         Ok(ParamMap {
             height,
             width,
