@@ -4,10 +4,8 @@
 
 use std::collections::BTreeMap;
 
-use std::path::Path;
-
 use nam_weights::{
-    StoreAs, Tensor, TensorFile, TensorView, write_safetensors_as, write_safetensors_file,
+    StoreAs, Tensor, TensorFile, TensorView, write_safetensors_as, write_safetensors_to,
 };
 
 use crate::error::{ModelError, Result};
@@ -40,14 +38,18 @@ impl ParamMap {
         Ok(write_safetensors_as(&tensors, &meta, dtype)?)
     }
 
-    /// [`Self::to_nam_bytes_as`] streamed into the file at `path` (replaced through a sibling
-    /// temporary file): it needs no copy of the params and no buffer of the whole file, only
-    /// the stored bytes (half the params' memory for F16).
-    pub fn write_nam_file(&self, path: &Path, model_sha256: &str, dtype: StoreAs) -> Result<()> {
+    /// [`Self::to_nam_bytes_as`] streamed into `out` (the same bytes): no copy of the params
+    /// and no buffer of the file.
+    pub fn write_nam(
+        &self,
+        out: &mut impl std::io::Write,
+        model_sha256: &str,
+        dtype: StoreAs,
+    ) -> Result<()> {
         let (meta, shape) = self.nam_header(model_sha256, dtype)?;
         let params = TensorView::new(&shape, &self.data).expect("checked by nam_header");
         let tensors = BTreeMap::from([(PARAMS_TENSOR.to_string(), params)]);
-        Ok(write_safetensors_file(path, &tensors, &meta, dtype)?)
+        Ok(write_safetensors_to(out, &tensors, &meta, dtype)?)
     }
 
     /// The `.nam` metadata and the params' shape, after checking that `data` has that shape

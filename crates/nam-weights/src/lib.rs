@@ -45,6 +45,6 @@ pub use layout::{DirectionWork, RenderWork, UNET_MULTIPLE, expected_tensors};
 pub use radiance::radiance_from_log;
 pub use tensor_file::{
     Dtype, MAX_HEADER_BYTES, StoreAs, Tensor, TensorFile, TensorView, write_safetensors,
-    write_safetensors_as, write_safetensors_file,
+    write_safetensors_as, write_safetensors_to,
 };
 pub use weights::{Scope, SplitMix64, Weights};

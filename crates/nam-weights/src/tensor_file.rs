@@ -128,10 +128,7 @@ struct StoredView<'a>(TensorView<'a>, StoreAs);
 
 impl View for StoredView<'_> {
     fn dtype(&self) -> safetensors::Dtype {
-        match self.1 {
-            StoreAs::F32 => safetensors::Dtype::F32,
-            StoreAs::F16 => safetensors::Dtype::F16,
-        }
+        self.1.dtype()
     }
 
     fn shape(&self) -> &[usize] {
@@ -139,23 +136,13 @@ impl View for StoredView<'_> {
     }
 
     fn data(&self) -> Cow<'_, [u8]> {
-        Cow::Owned(match self.1 {
-            StoreAs::F32 => self.0.data.iter().flat_map(|v| v.to_le_bytes()).collect(),
-            StoreAs::F16 => self
-                .0
-                .data
-                .iter()
-                .flat_map(|v| half::f16::from_f32(*v).to_le_bytes())
-                .collect(),
-        })
+        let mut bytes = Vec::with_capacity(self.data_len());
+        self.1.encode(self.0.data, &mut bytes);
+        Cow::Owned(bytes)
     }
 
     fn data_len(&self) -> usize {
-        self.0.data.len()
-            * match self.1 {
-                StoreAs::F32 => 4,
-                StoreAs::F16 => 2,
-            }
+        self.0.data.len() * self.1.bytes()
     }
 }
 
@@ -170,6 +157,33 @@ pub enum StoreAs {
 }
 
 impl StoreAs {
+    /// Bytes per value.
+    pub fn bytes(self) -> usize {
+        match self {
+            StoreAs::F32 => 4,
+            StoreAs::F16 => 2,
+        }
+    }
+
+    /// Appends `values` as little-endian bytes of this dtype (F16 rounded to nearest).
+    fn encode(self, values: &[f32], out: &mut Vec<u8>) {
+        match self {
+            StoreAs::F32 => out.extend(values.iter().flat_map(|v| v.to_le_bytes())),
+            StoreAs::F16 => out.extend(
+                values
+                    .iter()
+                    .flat_map(|v| half::f16::from_f32(*v).to_le_bytes()),
+            ),
+        }
+    }
+
+    fn dtype(self) -> safetensors::Dtype {
+        match self {
+            StoreAs::F32 => safetensors::Dtype::F32,
+            StoreAs::F16 => safetensors::Dtype::F16,
+        }
+    }
+
     /// The largest magnitude stored as a finite value (f16: 65504).
     pub fn largest(self) -> f32 {
         match self {
@@ -403,18 +417,54 @@ pub fn write_safetensors_as(
         .map_err(|e| WeightsError::Serialize(e.to_string()))
 }
 
-/// [`write_safetensors_as`] of borrowed tensors, streamed into the file at `path` (the
-/// `safetensors` crate fills a sibling temporary file and renames it over `path`): beyond the
-/// tensors themselves it holds one tensor's stored bytes at a time, not the whole file.
-pub fn write_safetensors_file(
-    path: &Path,
+/// [`write_safetensors_as`] of borrowed tensors, streamed into `out`: the same bytes, without
+/// a copy of the tensors or a buffer of the file (values are converted a block at a time).
+/// The header is the crate's `Metadata`, laid out as `safetensors::serialize` lays it out
+/// (a little-endian `u64` length, then the JSON padded with spaces to a multiple of 8 bytes);
+/// a test checks the two writers agree byte for byte.
+pub fn write_safetensors_to(
+    out: &mut impl std::io::Write,
     tensors: &BTreeMap<String, TensorView<'_>>,
     metadata: &BTreeMap<String, String>,
     dtype: StoreAs,
 ) -> Result<()> {
-    let views = tensors.iter().map(|(n, t)| (n, StoredView(*t, dtype)));
-    safetensors::serialize_to_file(views, header_metadata(metadata), path)
-        .map_err(|e| WeightsError::Serialize(format!("{}: {e}", path.display())))
+    let serialize = |e: String| WeightsError::Serialize(e);
+    let mut offset = 0;
+    let infos = tensors
+        .iter()
+        .map(|(name, t)| {
+            let n = t.data.len() * dtype.bytes();
+            offset += n;
+            let info = TensorInfo {
+                dtype: dtype.dtype(),
+                shape: t.shape.to_vec(),
+                data_offsets: (offset - n, offset),
+            };
+            (name.clone(), info)
+        })
+        .collect();
+    let header = safetensors::tensor::Metadata::new(header_metadata(metadata), infos)
+        .map_err(|e| serialize(e.to_string()))?;
+    let mut header = serde_json::to_vec(&header).map_err(|e| serialize(e.to_string()))?;
+    header.resize(header.len().next_multiple_of(PREFIX_BYTES), b' ');
+    if header.len() > MAX_HEADER_BYTES {
+        return Err(serialize(format!("header of {} bytes", header.len())));
+    }
+    let io = |e: std::io::Error| serialize(e.to_string());
+    out.write_all(&(header.len() as u64).to_le_bytes())
+        .and_then(|()| out.write_all(&header))
+        .map_err(io)?;
+    /// Values converted per write.
+    const BLOCK: usize = 1 << 16;
+    let mut bytes = Vec::with_capacity(BLOCK * dtype.bytes());
+    for t in tensors.values() {
+        for block in t.data.chunks(BLOCK) {
+            bytes.clear();
+            dtype.encode(block, &mut bytes);
+            out.write_all(&bytes).map_err(io)?;
+        }
+    }
+    Ok(())
 }
 
 /// The crate's `__metadata__` map (`None` when empty, so no empty object is written).

@@ -4,7 +4,8 @@
 use std::collections::BTreeMap;
 
 use nam_weights::{
-    ModelConfig, Tensor, TensorFile, Weights, WeightsError, expected_tensors, write_safetensors,
+    ModelConfig, StoreAs, Tensor, TensorFile, TensorView, Weights, WeightsError, expected_tensors,
+    write_safetensors, write_safetensors_as, write_safetensors_to,
 };
 
 fn tiny_config() -> ModelConfig {
@@ -17,6 +18,30 @@ fn tensors_of(w: &Weights) -> BTreeMap<String, Tensor> {
 
 fn meta(cfg: &ModelConfig) -> BTreeMap<String, String> {
     BTreeMap::from([("config".to_string(), cfg.to_json())])
+}
+
+#[test]
+fn streamed_writer_writes_the_bytes_of_the_in_memory_one() {
+    // Every tensor of a model (many names, shapes and sizes; one above the writer's block of
+    // 65536 values), with and without metadata, in both stored dtypes.
+    let mut tensors = tensors_of(&Weights::random(tiny_config(), 3).unwrap());
+    let big: Vec<f32> = (0..70_007).map(|i| (i as f32 * 0.37).sin() * 1e3).collect();
+    tensors.insert("big".into(), Tensor::new(vec![7, 10_001], big).unwrap());
+    let views: BTreeMap<String, TensorView<'_>> =
+        tensors.iter().map(|(n, t)| (n.clone(), t.view())).collect();
+    for metadata in [meta(&tiny_config()), BTreeMap::new()] {
+        for dtype in [StoreAs::F32, StoreAs::F16] {
+            let mut streamed = Vec::new();
+            write_safetensors_to(&mut streamed, &views, &metadata, dtype).unwrap();
+            let whole = write_safetensors_as(&tensors, &metadata, dtype).unwrap();
+            assert!(
+                streamed == whole,
+                "{dtype:?}: {} vs {} bytes",
+                streamed.len(),
+                whole.len()
+            );
+        }
+    }
 }
 
 #[test]

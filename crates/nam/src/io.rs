@@ -2,6 +2,7 @@
 //! error, and atomic writes.
 
 use crate::error::{NamError, Result};
+use std::io::Write;
 use std::path::Path;
 
 /// Largest model file read (bytes): a C = 64 f32 model is ~40 MB, the shipped C = 8 f16 one
@@ -42,17 +43,20 @@ impl Staged {
     /// Writes `bytes` to a temporary file in `path`'s folder (flushed to disk, with the
     /// permissions `path` will have).
     pub fn write(path: &Path, bytes: &[u8]) -> Result<Self> {
-        Self::write_with(path, |tmp| {
-            std::fs::write(tmp, bytes).map_err(|error| NamError::Io {
+        Self::write_with(path, |file| {
+            file.write_all(bytes).map_err(|error| NamError::Io {
                 path: path.to_path_buf(),
                 error,
             })
         })
     }
 
-    /// Like [`Self::write`], with `fill(tmp)` writing the whole file at the temporary path `tmp`
-    /// (it may replace the file there): for writers that stream into a file.
-    pub fn write_with(path: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<Self> {
+    /// Like [`Self::write`], with `fill` writing the whole file into the temporary one (it is
+    /// flushed and given its permissions afterwards): for writers that stream.
+    pub fn write_with(
+        path: &Path,
+        fill: impl FnOnce(&mut std::fs::File) -> Result<()>,
+    ) -> Result<Self> {
         let io = |error| NamError::Io {
             path: path.to_path_buf(),
             error,
@@ -61,21 +65,18 @@ impl Staged {
             Some(d) if !d.as_os_str().is_empty() => d,
             _ => Path::new("."),
         };
-        let tmp = tempfile::Builder::new()
+        let mut tmp = tempfile::Builder::new()
             .prefix(".nam-")
             .suffix(".tmp")
             .tempfile_in(dir)
-            .map_err(io)?
-            .into_temp_path();
-        fill(&tmp)?;
-        std::fs::File::open(&tmp)
-            .and_then(|file| {
-                file.set_permissions(final_permissions(path, &file)?)?;
-                file.sync_all()
-            })
+            .map_err(io)?;
+        fill(tmp.as_file_mut())?;
+        final_permissions(path, tmp.as_file())
+            .and_then(|perm| tmp.as_file().set_permissions(perm))
+            .and_then(|()| tmp.as_file().sync_all())
             .map_err(io)?;
         Ok(Self {
-            tmp,
+            tmp: tmp.into_temp_path(),
             path: path.to_path_buf(),
         })
     }

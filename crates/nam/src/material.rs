@@ -2,6 +2,7 @@
 
 use crate::error::{NamError, Result};
 use nam_model::ParamMap;
+use std::io::Write;
 use std::path::Path;
 
 /// A neural material: one latent vector per pixel (`H×W×64`, HWC), estimated by one model.
@@ -92,10 +93,14 @@ impl NeuralMaterial {
     }
 
     fn write(&self, path: &Path, dtype: nam_weights::StoreAs) -> Result<()> {
-        crate::io::Staged::write_with(path, |tmp| {
-            Ok(self
-                .params
-                .write_nam_file(tmp, &self.model_fingerprint, dtype)?)
+        crate::io::Staged::write_with(path, |file| {
+            let mut out = std::io::BufWriter::new(file);
+            self.params
+                .write_nam(&mut out, &self.model_fingerprint, dtype)?;
+            out.flush().map_err(|error| NamError::Io {
+                path: path.to_path_buf(),
+                error,
+            })
         })?
         .commit()
     }

@@ -29,6 +29,8 @@ pub(super) struct Ha {
     pub(super) inc1a: Option<PackedConv>,
     pub(super) inc1b: PackedConv,
     pub(super) has_down: bool,
+    /// Pixels per band of the stride-1 path ([`HA_BAND_PIXELS`]; tests make it small).
+    pub(super) band_pixels: usize,
 }
 
 impl Ha {
@@ -61,6 +63,7 @@ impl Ha {
             inc1a: (stride != 1).then(|| PackedConv::fused(&[(i1a, cout, 3)], cin, 3, 1)),
             inc1b: PackedConv::fused(&[(i1b, cout / 2, 3)], cout, 3, stride),
             has_down: down.is_some(),
+            band_pixels: HA_BAND_PIXELS,
         })
     }
 
@@ -87,31 +90,129 @@ impl Ha {
             let s = inv[r % self.main.cin];
             row[feat0..feat0 + co].iter_mut().for_each(|w| *w *= s);
         }
-        let main = self.main.run_with(&xc, &wt);
-        drop(xc);
-        let (c1b, c1b_bias) = match &self.inc1a {
-            Some(c) => (self.inc1b.run(&c.run(x)), vec![0.0; half]),
-            // inc1a without its bias sits in columns 0..co of `main` (read as a
-            // view); inc1b of that constant bias image is again a constant.
-            None => (
-                self.inc1b.run(&main),
-                constant_response(&self.inc1b, &bias[..co]),
-            ),
-        };
         let f32s = |v: &[f64]| -> Vec<f32> { v.iter().map(|&b| b as f32).collect() };
-        let (bias, c1b_bias) = (f32s(&bias), f32s(&c1b_bias));
-        let (h, w) = (main.h, main.w);
-        let mut out = vec![0.0f32; h * w * co];
+        let (h, w) = self.main.out_size(x);
+        // Allocated once the centred copy is gone where the image is one band, so the two
+        // are not held together.
+        let outputs = || {
+            let d = self.has_down.then(|| vec![0.0f32; h * w * co]);
+            (vec![0.0f32; h * w * co], d)
+        };
+        let (mut out, mut down) = (Vec::new(), None);
+        let mix = Mix {
+            cols,
+            co,
+            off,
+            bias: f32s(&bias),
+            slope,
+        };
+        match &self.inc1a {
+            // Stride 2 (the first block of a level): the output has a quarter of the input's
+            // pixels, so it runs in one piece.
+            Some(c) => {
+                let main = self.main.run_with(&xc, &wt);
+                drop(xc);
+                (out, down) = outputs();
+                let c1b = self.inc1b.run(&c.run(x));
+                let c1b_bias = vec![0.0; half];
+                mix.run(
+                    &main.d,
+                    &c1b.d,
+                    &c1b_bias,
+                    0,
+                    &mut out,
+                    down.as_deref_mut(),
+                    &post,
+                );
+            }
+            // Stride 1: the fused GEMM and inc1b run over bands of output rows, so their
+            // 7·C/2 + C/2 columns are never held for the whole image. inc1b (3×3) reads inc1a
+            // one row beyond the band: those halo rows are computed too, and inc1b's
+            // replicate padding at a band edge only touches halo outputs, which are dropped.
+            None => {
+                // inc1a without its bias sits in columns 0..co of `main` (read as a view);
+                // inc1b of that constant bias image is again a constant.
+                let c1b_bias = f32s(&constant_response(&self.inc1b, &bias[..co]));
+                let band = (self.band_pixels / w).max(1);
+                let mut xc = Some(xc);
+                for y0 in (0..h).step_by(band) {
+                    let y1 = (y0 + band).min(h);
+                    let (a, b) = (y0.saturating_sub(1), (y1 + 1).min(h));
+                    let main =
+                        self.main
+                            .run_rows(xc.as_ref().expect("until the last band"), &wt, a..b);
+                    if y1 == h {
+                        // The last band's GEMM was the centred copy's last reader.
+                        xc = None;
+                    }
+                    if out.is_empty() {
+                        (out, down) = outputs();
+                    }
+                    let c1b = self.inc1b.run(&main);
+                    let rows = (y0 - a) * w..(y1 - a) * w;
+                    let pixels = y0 * w..y1 * w;
+                    mix.run(
+                        &main.d[rows.start * cols..rows.end * cols],
+                        &c1b.d[rows.start * half..rows.end * half],
+                        &c1b_bias,
+                        pixels.start,
+                        &mut out[pixels.start * co..pixels.end * co],
+                        down.as_deref_mut()
+                            .map(|d| &mut d[pixels.start * co..pixels.end * co]),
+                        &post,
+                    );
+                }
+            }
+        }
+        let hwc = |d| Hwc { h, w, c: co, d };
+        (hwc(out), down.map(hwc))
+    }
+}
+
+/// Pixels per band of a stride-1 HA-Conv (about 15 MB of GEMM output at C = 8; a 256² image
+/// is one band).
+pub(super) const HA_BAND_PIXELS: usize = 1 << 16;
+
+/// The element-wise end of an HA-Conv over a run of pixels: gate, InstanceNorm'd feat, inc
+/// branches and the fused `down`, from the fused GEMM's columns.
+struct Mix {
+    /// Columns of the fused GEMM: `[inc1a (s = 1 only) | gate | inc2 | feat | down?]`.
+    cols: usize,
+    co: usize,
+    /// Column of the gate (`co` at stride 1, after inc1a; else 0).
+    off: usize,
+    /// Per column: the response to the mean image (0 for feat).
+    bias: Vec<f32>,
+    slope: f32,
+}
+
+impl Mix {
+    /// Writes the HA output (then `post(first + i, px)`) and `down` for the pixels of `main`
+    /// (`cols` values each) and `c1b` (inc1b without its bias, `co/2` each).
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &self,
+        main: &[f32],
+        c1b: &[f32],
+        c1b_bias: &[f32],
+        first: usize,
+        out: &mut [f32],
+        down: Option<&mut [f32]>,
+        post: &(impl Fn(usize, &mut [f32]) + Sync),
+    ) {
+        let (co, cols, off, slope) = (self.co, self.cols, self.off, self.slope);
+        let half = co / 2;
+        let feat0 = off + co + half;
         const P: usize = EW_PIXELS;
-        let (gate_b, inc2_b) = bias[off..feat0].split_at(co);
+        let (gate_b, inc2_b) = self.bias[off..feat0].split_at(co);
         out.par_chunks_mut(co * P)
-            .zip(main.d.par_chunks(main.c * P))
-            .zip(c1b.d.par_chunks(half * P))
+            .zip(main.par_chunks(cols * P))
+            .zip(c1b.par_chunks(half * P))
             .enumerate()
             .for_each(|(chunk, ((o, m), c1))| {
                 // gate + bias, then the sigmoid over the whole contiguous block
                 // (a flat loop vectorises; a per-pixel one over `co` does not).
-                for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(main.c)) {
+                for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
                     for ((o, &g), &b) in o.iter_mut().zip(&m[off..off + co]).zip(gate_b) {
                         *o = g + b;
                     }
@@ -119,7 +220,7 @@ impl Ha {
                 o.iter_mut().for_each(|v| *v = sigmoid(*v));
                 let px = o
                     .chunks_exact_mut(co)
-                    .zip(m.chunks_exact(main.c))
+                    .zip(m.chunks_exact(cols))
                     .zip(c1.chunks_exact(half));
                 for (i, ((o, m), c1)) in px.enumerate() {
                     // Channels < half add inc1b, the rest inc2 (columns after the gate).
@@ -130,33 +231,22 @@ impl Ha {
                         o_lo[k] = ha_mix(o_lo[k], f_lo[k], c1[k] + c1b_bias[k], slope);
                         o_hi[k] = ha_mix(o_hi[k], f_hi[k], inc2[k] + inc2_b[k], slope);
                     }
-                    post(chunk * P + i, o);
+                    post(first + chunk * P + i, o);
                 }
             });
-        let down = self.has_down.then(|| {
+        if let Some(d) = down {
             let s = feat0 + co;
-            let b = &bias[s..s + co];
-            let mut d = vec![0.0f32; h * w * co];
+            let b = &self.bias[s..s + co];
             d.par_chunks_mut(co * P)
-                .zip(main.d.par_chunks(main.c * P))
+                .zip(main.par_chunks(cols * P))
                 .for_each(|(o, m)| {
-                    for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(main.c)) {
+                    for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
                         for ((o, &v), &b) in o.iter_mut().zip(&m[s..s + co]).zip(b) {
                             *o = v + b;
                         }
                     }
                 });
-            Hwc { h, w, c: co, d }
-        });
-        (
-            Hwc {
-                h,
-                w,
-                c: co,
-                d: out,
-            },
-            down,
-        )
+        }
     }
 }
 
@@ -403,5 +493,56 @@ impl Reverse {
                 }
             });
         y
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nam_weights::{ModelConfig, Weights};
+
+    /// Band edges change only which rows one GEMM call covers, so the summation order of a
+    /// product may differ (the GEMM kernel depends on the call's size): f32 rounding.
+    const BAND_TOL: f32 = 1e-5;
+
+    #[test]
+    fn banded_ha_conv_matches_one_band_at_band_edges_and_image_borders() {
+        let weights = Weights::random(ModelConfig::standard(8), 11).unwrap();
+        let est = weights.scope("est");
+        // dec4.0: 24 → 8 channels with the fused 1×1 down; dec4.1: 8 → 8 without.
+        for (scope, cin, cout) in [("dec4.0", 24, 8), ("dec4.1", 8, 8)] {
+            let block = Basic::new(&est.scope(scope), cin, cout, 1).unwrap();
+            let (h, w) = (37, 23);
+            let x = Hwc {
+                h,
+                w,
+                c: cin,
+                d: (0..h * w * cin)
+                    .map(|i| ((i * 7919 % 1009) as f32 / 1009.0 - 0.3) * 2.0)
+                    .collect(),
+            };
+            let post = |p: usize, px: &mut [f32]| px.iter_mut().for_each(|v| *v += p as f32 * 1e-3);
+            let (whole, whole_down) = block.ha1.run(&x, 1e-5, 0.01, post);
+            for rows in [1, 2, 5, 36] {
+                let mut ha = block.ha1.clone();
+                ha.band_pixels = rows * w;
+                let (banded, banded_down) = ha.run(&x, 1e-5, 0.01, post);
+                let worst = whole
+                    .d
+                    .iter()
+                    .zip(&banded.d)
+                    .map(|(a, b)| (a - b).abs() / a.abs().max(1.0))
+                    .fold(0.0f32, f32::max);
+                assert!(worst < BAND_TOL, "{scope}, {rows} rows a band: {worst:e}");
+                assert_eq!(whole_down.is_some(), banded_down.is_some());
+                if let (Some(a), Some(b)) = (&whole_down, &banded_down) {
+                    assert!(
+                        a.d.iter()
+                            .zip(&b.d)
+                            .all(|(a, b)| (a - b).abs() <= BAND_TOL * a.abs().max(1.0))
+                    );
+                }
+            }
+        }
     }
 }

@@ -83,11 +83,27 @@ impl PackedConv {
 
     /// Like [`Self::run`], with `wt` (same packing as `self.wt`) as weights.
     pub(super) fn run_with(&self, x: &Hwc, wt: &[f32]) -> Hwc {
+        self.run_rows(x, wt, 0..self.out_size(x).0)
+    }
+
+    /// Output `(height, width)` of this conv on `x`.
+    pub(super) fn out_size(&self, x: &Hwc) -> (usize, usize) {
+        (
+            (x.h + 2 * self.pad - self.k) / self.stride + 1,
+            (x.w + 2 * self.pad - self.k) / self.stride + 1,
+        )
+    }
+
+    /// Output rows `rows` of [`Self::run_with`] (an `Hwc` of `rows.len()` rows): the same
+    /// values, computed without the rest of the output.
+    pub(super) fn run_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
         debug_assert!(self.cin <= x.c);
         debug_assert_eq!(wt.len(), self.wt.len());
         let whole = x.c == self.cin;
-        let ho = (x.h + 2 * self.pad - self.k) / self.stride + 1;
-        let wo = (x.w + 2 * self.pad - self.k) / self.stride + 1;
+        let (ho, wo) = self.out_size(x);
+        debug_assert!(rows.end <= ho);
+        let first = rows.start * wo;
+        let ho = rows.len();
         let kk = self.k * self.k * self.cin;
         let rows = (BAND_PIXELS / wo).max(1);
         let mut out = vec![0.0f32; ho * wo * self.cout];
@@ -98,7 +114,7 @@ impl PackedConv {
                 |(col, tmp): &mut (Vec<f32>, Vec<f32>), (band, dst)| {
                     let m = dst.len() / self.cout;
                     col.resize(m * kk, 0.0);
-                    let p0 = band * rows * wo;
+                    let p0 = first + band * rows * wo;
                     for p in 0..m {
                         let (oy, ox) = ((p0 + p) / wo, (p0 + p) % wo);
                         let row = &mut col[p * kk..(p + 1) * kk];

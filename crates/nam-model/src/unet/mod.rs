@@ -128,19 +128,24 @@ impl UNet {
     }
 
     /// Heap bytes [`Self::estimate`] holds at its peak for a `height × width` input, the returned
-    /// param map (f32) included, the input not. The full-resolution stages dominate: the
-    /// decoder's last BasicBlocks (input, centred copy, the fused GEMM's 7·C columns, inc1b and
-    /// output: ≈ 16·C floats per pixel) or the head (its 64 outputs and its input); each rayon
-    /// thread adds an im2col band. `tests/memory.rs` checks it against a counting allocator.
+    /// param map (f32) included, the input not. The larger of two full-resolution stages: the
+    /// last BasicBlocks of the decoder (per pixel their input, first HA-Conv output, centred
+    /// copy, output and the skip `e1`: ≈ 9·C floats; plus one band of an HA-Conv's fused GEMM
+    /// and inc1b, ≈ 8·C floats for up to [`blocks::HA_BAND_PIXELS`] pixels) or the head (its
+    /// 64 outputs and its input). On top, each rayon thread's im2col band. `tests/memory.rs` checks it against a
+    /// counting allocator (docs/perf/unet_memory.md).
     pub fn peak_bytes(&self, height: usize, width: usize) -> u64 {
         let (hp, wp) = (pad_multiple(height), pad_multiple(width));
+        let pixels = hp * wp;
         let (c, i) = (self.width, self.in_channels);
         let head_in = c + if self.input_skip { i } else { 0 };
-        let per_pixel = (16 * c + 2 * i).max(self.params + head_in + i);
+        let band = pixels.min(blocks::HA_BAND_PIXELS + 2 * wp);
+        let decoder = pixels * (9 * c + 2 * i) + band * 8 * c;
+        let head = pixels * (self.params + head_in + i);
         // Widest im2col row: the 7×7 stem and head, or a 3×3 conv over 12·C channels (dec2).
         let row = (49 * head_in).max(49 * i).max(9 * 12 * c);
-        let bands = rayon::current_num_threads() * conv::BAND_PIXELS.max(wp) * row;
-        4 * (hp as u64 * wp as u64 * per_pixel as u64 + bands as u64)
+        let im2col = rayon::current_num_threads() * conv::BAND_PIXELS.max(wp) * row;
+        4 * (decoder.max(head) + im2col) as u64
     }
 
     /// Runs `M_est` on the network input (CHW, `in_channels × height × width`,
