@@ -103,6 +103,17 @@ impl Photo {
         })
     }
 
+    /// Wraps `height`×`width` 8-bit sRGB-encoded RGB values (row-major, interleaved), decoded
+    /// to linear as a PNG or JPEG file's are ([`Photo::load`]); otherwise as
+    /// [`Photo::from_linear_rgb`].
+    pub fn from_srgb8(height: usize, width: usize, rgb: &[u8]) -> Result<Self> {
+        let linear = rgb
+            .iter()
+            .map(|&v| srgb_decode(f32::from(v) / f32::from(u8::MAX)))
+            .collect();
+        Self::from_linear_rgb(height, width, linear)
+    }
+
     /// Declares the field of view of the camera that took the (square) photo, in degrees,
     /// within [`FOV_RANGE_DEG`]: the estimator then sees camera and flash at (0, 0, d),
     /// d = [`capture_distance`]`(degrees)` (surface frame, material half-widths), instead of

@@ -71,6 +71,22 @@ fn network_input_matches_torch_golden() {
 }
 
 #[test]
+fn srgb8_pixels_decode_like_a_png_file() {
+    // Every 8-bit value, in a 16×16×3 photo written as a PNG and loaded from it.
+    let bytes: Vec<u8> = (0..16 * 16 * 3).map(|k| (k * 7 % 256) as u8).collect();
+    let dir = tempfile::tempdir().expect("tmp");
+    let path = dir.path().join("p.png");
+    image::RgbImage::from_raw(16, 16, bytes.clone())
+        .expect("image")
+        .save(&path)
+        .expect("png");
+    let from_file = Photo::load(&path).expect("load");
+    let from_pixels = Photo::from_srgb8(16, 16, &bytes).expect("pixels");
+    assert_eq!(from_pixels.rgb(), from_file.rgb());
+    assert!(Photo::from_srgb8(16, 15, &bytes[..16 * 15 * 3]).is_err());
+}
+
+#[test]
 fn estimate_cost_forecasts_memory_and_time_on_the_cpu() {
     let model = tiny();
     let cost = model.estimate_cost(64).expect("cost");
