@@ -149,6 +149,28 @@ impl Material {
     }
 }
 
+/// The `(uv, wi, wo)` arguments of a batch call, as Python passed them.
+type BatchArgs<'a, 'py> = (
+    &'a Bound<'py, PyAny>,
+    &'a Bound<'py, PyAny>,
+    &'a Bound<'py, PyAny>,
+);
+
+impl Material {
+    /// An RGB value per query (`N×3`) from one of the BRDF's batched evaluations.
+    fn rgb_per_query<'py>(
+        &self,
+        py: Python<'py>,
+        (uv, wi, wo): BatchArgs<'_, 'py>,
+        f: impl Fn(&NeuralBrdf<'_>, &[BrdfQuery]) -> nam::Result<Vec<Vec3>> + Sync,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let (uv, wi, wo) = batch(uv, wi, wo)?;
+        let q = queries(&uv, &wi, &wo);
+        let v = self.brdf(py, |b| f(&b, &q))?;
+        Ok(out_rows(py, v.iter().map(Vec3::to_array).collect()))
+    }
+}
+
 /// `N×3` directions and `N×2` texture coordinates as queries.
 fn queries(uv: &[[f32; 2]], wi: &[[f32; 3]], wo: &[[f32; 3]]) -> Vec<BrdfQuery> {
     uv.iter()
@@ -250,10 +272,7 @@ impl Material {
         wi: &Bound<'py, PyAny>,
         wo: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let (uv, wi, wo) = batch(uv, wi, wo)?;
-        let q = queries(&uv, &wi, &wo);
-        let v = self.brdf(py, |b| b.eval(&q))?;
-        Ok(out_rows(py, v.iter().map(Vec3::to_array).collect()))
+        self.rgb_per_query(py, (uv, wi, wo), |b, q| b.eval(q))
     }
 
     /// `f_r` alone (RGB, `N×3`): [`eval`](Self::eval) divided by `cos θi`.
@@ -264,10 +283,7 @@ impl Material {
         wi: &Bound<'py, PyAny>,
         wo: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let (uv, wi, wo) = batch(uv, wi, wo)?;
-        let q = queries(&uv, &wi, &wo);
-        let v = self.brdf(py, |b| b.eval_fr(&q))?;
-        Ok(out_rows(py, v.iter().map(Vec3::to_array).collect()))
+        self.rgb_per_query(py, (uv, wi, wo), |b, q| b.eval_fr(q))
     }
 
     /// Samples `wi` with cosine-weighted hemisphere sampling for `N` rows of `uv` (`N×2`),
