@@ -2,7 +2,8 @@
 //!
 //! One module per subcommand under `cmd/`; shared helpers: `args` (value parsers),
 //! `backend` (`--model`, `--backend`, `--precision`), `output` (atomic image writing),
-//! `progress` (indicatif bars for long work), `sweep` (light sweeps, contact sheets, GIFs).
+//! `progress` (indicatif bars for long work), `sweep` (light sweeps, contact sheets, GIFs),
+//! `viewer` (the browser viewer's server).
 
 mod args;
 mod backend;
@@ -11,6 +12,7 @@ mod forecast;
 mod output;
 mod progress;
 mod sweep;
+mod viewer;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -37,6 +39,8 @@ enum Command {
     Report(cmd::report::Args),
     /// Time the CPU paths (estimate, relights, ROI, queries) against each other: Markdown table.
     Bench(cmd::bench::Args),
+    /// Serve an interactive relighting viewer to a browser on this machine (127.0.0.1).
+    View(cmd::view::Args),
 }
 
 /// libwayland-client, loaded by Mesa's Vulkan drivers while wgpu enumerates adapters, prints
@@ -66,6 +70,7 @@ fn main() -> ExitCode {
         Command::Info(args) => cmd::info::run(&args),
         Command::Report(args) => cmd::report::run(&args),
         Command::Bench(args) => cmd::bench::run(&args),
+        Command::View(args) => cmd::view::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -4,8 +4,8 @@
 use nam_ggx::imageio::read_rgb;
 mod common;
 
-use common::{expect_failure, ok, root, run, s, stderr, tmp};
-use std::path::{Path, PathBuf};
+use common::{expect_failure, ok, root, run, s, small_photo, stderr, tmp};
+use std::path::Path;
 
 /// CPU and GPU (lavapipe) renders of the same photo agree to this relative error. The networks
 /// agree to 3e-5 on identical inputs and both paths now derive the same f32 directions
@@ -17,16 +17,6 @@ const GPU_REL_TOL: f32 = 2e-2;
 /// Relight log-L1 between a material saved with f16 params (the default) and the photo's own
 /// relight. Measured 1.0e-5 mean, 2.6e-5 worst over 12 real photos at 128² (issue 19).
 const F16_PARAMS_LOG_L1: f32 = 1e-4;
-
-/// A small square photo: the bundled example photo downscaled to `side` pixels (PNG).
-fn small_photo(dir: &Path, side: u32) -> PathBuf {
-    let img = image::open(root().join("assets/example_photo.png"))
-        .unwrap_or_else(|e| panic!("{e}"))
-        .resize_exact(side, side, image::imageops::FilterType::Triangle);
-    let path = dir.join(format!("photo{side}.png"));
-    img.save(&path).unwrap_or_else(|e| panic!("{e}"));
-    path
-}
 
 /// A 256² 8-bit image whose mean code is neither black nor white.
 fn assert_plausible_relight(path: &Path) {

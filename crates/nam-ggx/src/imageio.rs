@@ -400,7 +400,7 @@ pub fn encode_png(img: &RgbImage<f32>, depth: PngDepth) -> Result<Vec<u8>> {
     let q = |v: f32, max: f32| (v.clamp(0.0, 1.0) * max).round();
     let dynamic = match depth {
         PngDepth::Eight => {
-            let raw: Vec<u8> = img.data().iter().map(|&v| q(v, 255.0) as u8).collect();
+            let raw: Vec<u8> = img.data().iter().map(|&v| quantize8(v)).collect();
             ::image::RgbImage::from_raw(w, h, raw).map(::image::DynamicImage::ImageRgb8)
         }
         PngDepth::Sixteen => {
@@ -417,6 +417,14 @@ pub fn encode_png(img: &RgbImage<f32>, depth: PngDepth) -> Result<Vec<u8>> {
             reason: e.to_string(),
         })?;
     Ok(out.into_inner())
+}
+
+/// An encoded value in [0, 1] as the 8-bit level an 8-bit PNG stores: `round(255·v)` after
+/// clamping (NaN gives 0).
+#[inline]
+pub fn quantize8(v: f32) -> u8 {
+    // `as` saturates and maps NaN to 0.
+    (v.clamp(0.0, 1.0) * 255.0).round() as u8
 }
 
 /// Encodes an RGB image as an OpenEXR file (f32 channels R, G, B; linear values as given).

@@ -246,8 +246,8 @@ pub(crate) fn upload_unet(
     })
 }
 
-/// Uploads `M_render`, folding `render.l1 · render.l0` (no activation between them) into one
-/// matrix in f64.
+/// Uploads `M_render` with `render.l1 · render.l0` folded into one matrix
+/// ([`Weights::render_layers`]).
 pub(crate) fn upload_render(
     ctx: &GpuContext,
     weights: &Weights,
@@ -255,55 +255,15 @@ pub(crate) fn upload_render(
 ) -> Result<RenderWeights> {
     let cfg = weights.config();
     let up = Uploader { ctx, precision };
-    let nd_scope = weights.scope("nd_enc");
-    let n_nd = cfg.nd_enc.len() - 1;
-    let mut nd = Vec::with_capacity(n_nd);
-    for i in 0..n_nd {
-        let (inp, out) = (cfg.nd_enc[i], cfg.nd_enc[i + 1]);
-        let name = format!("l{i}.weight");
-        nd.push(up.linear(
-            &format!("nd_enc.{name}"),
-            nd_scope.get(&name, &[out, inp])?,
-            (out, inp),
-            (i + 1 < n_nd).then_some(cfg.slopes.nd_enc),
-        )?);
-    }
-    let r = &cfg.render;
-    let n_r = r.len() - 1;
-    if n_r < 2 {
-        return Err(GpuError::Unsupported(format!(
-            "render MLP with {n_r} layers (l0 and l1 are required)"
-        )));
-    }
-    let rs = weights.scope("render");
-    let w0 = rs.get("l0.weight", &[r[1], r[0]])?;
-    let w1 = rs.get("l1.weight", &[r[2], r[1]])?;
-    let mut folded = vec![0.0f32; r[2] * r[0]];
-    for (o, row) in folded.chunks_exact_mut(r[0]).enumerate() {
-        for (k, v) in row.iter_mut().enumerate() {
-            let s: f64 = (0..r[1])
-                .map(|m| f64::from(w1[o * r[1] + m]) * f64::from(w0[m * r[0] + k]))
-                .sum();
-            *v = s as f32;
-        }
-    }
-    let last_slope = |i: usize| {
-        if i + 1 == n_r {
-            cfg.slopes.render_out
-        } else {
-            cfg.slopes.render_hidden
-        }
-    };
-    let mut mlp = vec![up.linear("render.l0l1", &folded, (r[2], r[0]), Some(last_slope(1)))?];
-    for i in 2..n_r {
-        let name = format!("l{i}.weight");
-        mlp.push(up.linear(
-            &format!("render.{name}"),
-            rs.get(&name, &[r[i + 1], r[i]])?,
-            (r[i + 1], r[i]),
-            Some(last_slope(i)),
-        )?);
-    }
+    let layers = weights.render_layers(true)?;
+    let upload =
+        |l: &nam_weights::LinearLayer| up.linear(&l.name, &l.weight, (l.out, l.inp), l.slope);
+    let nd = layers
+        .nd_enc
+        .iter()
+        .map(upload)
+        .collect::<Result<Vec<_>>>()?;
+    let mlp = layers.mlp.iter().map(upload).collect::<Result<Vec<_>>>()?;
     Ok(RenderWeights {
         octaves: u(cfg.pe_octaves, "pe_octaves")?,
         encoding: u(cfg.encoding_len(), "encoding")?,

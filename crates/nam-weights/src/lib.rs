@@ -22,6 +22,8 @@
 //!   [`ModelConfig::estimate_macs`] and [`ModelConfig::render_macs`] — the multiply-adds of
 //!   `M_est` and `M_render` derived from the same layout; [`UNET_MULTIPLE`] — the padding.
 //! * [`radiance_from_log`] — the networks' log-space output as radiance.
+//! * [`Weights::render_layers`] — `M_render`'s linear layers and activations as every backend
+//!   runs them ([`RenderLayers`], [`LinearLayer`]).
 //! * [`TensorFile`] — any safetensors file (golden fixtures, `.nam` param maps)
 //!   as `f32` tensors plus `__metadata__`, without model validation;
 //!   [`write_safetensors`] writes one (F32). Both go through the `safetensors` crate.
@@ -36,6 +38,7 @@ mod config;
 mod error;
 mod layout;
 mod radiance;
+mod render_layers;
 mod tensor_file;
 mod weights;
 
@@ -43,6 +46,7 @@ pub use config::{LogMode, MAX_WIDTH, ModelConfig, Slopes};
 pub use error::{Result, WeightsError};
 pub use layout::{DirectionWork, RenderWork, UNET_MULTIPLE, expected_tensors};
 pub use radiance::radiance_from_log;
+pub use render_layers::{LinearLayer, RenderLayers};
 pub use tensor_file::{
     Dtype, MAX_HEADER_BYTES, StoreAs, Tensor, TensorFile, TensorView, write_safetensors,
     write_safetensors_as, write_safetensors_to,

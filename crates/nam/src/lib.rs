@@ -65,7 +65,7 @@ pub use nam_ggx::geometry;
 #[cfg(feature = "gpu")]
 pub use nam_gpu;
 /// Model configuration and weights (re-exported from `nam-weights`).
-pub use nam_weights::{LogMode, ModelConfig, Weights};
+pub use nam_weights::{LinearLayer, LogMode, ModelConfig, RenderLayers, Weights};
 /// The wgpu version the GPU backend is built against (engines pass its `Device`/`Queue`).
 #[cfg(feature = "gpu")]
 pub use wgpu;

@@ -9,3 +9,4 @@ pub mod relight;
 pub mod render_ggx;
 pub mod report;
 mod timing;
+pub mod view;

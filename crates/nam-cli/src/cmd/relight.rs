@@ -133,39 +133,51 @@ pub fn run(args: &Args) -> Result<()> {
     Ok(())
 }
 
-/// The scene of one frame; lights and viewers on or below the surface are errors here (the
-/// library would render them black).
+/// The scene of one frame of this run.
 fn scene(args: &Args, light: [f64; 3]) -> Result<Scene> {
+    let view = match args.view {
+        Some(view) => view,
+        None => capture_position(capture_distance(args.photo.fov)).to_array(),
+    };
+    make_scene(
+        (light, args.directional),
+        (view, args.orthographic),
+        (args.intensity, args.falloff),
+    )
+}
+
+/// A scene from a light (position, or direction when `.1`) and a viewer (position, or
+/// orthographic direction when `.1`), surface frame; lights and viewers on or below the
+/// surface are errors here (the library would render them black). `(intensity, falloff)`:
+/// see [`Scene`].
+pub fn make_scene(
+    (light, directional): ([f64; 3], bool),
+    (view, orthographic): ([f64; 3], bool),
+    (intensity, falloff): (f64, bool),
+) -> Result<Scene> {
     if light[2] <= 0.0 {
         bail!(
             "light {light:?} is not above the surface: z must be > 0 (the material lies on z = 0)"
         );
     }
-    let v = match args.view {
-        Some(view) => DVec3::from_array(view),
-        None => capture_position(capture_distance(args.photo.fov)),
-    };
-    if v.z <= 0.0 {
-        bail!(
-            "view {:?} is not above the surface: z must be > 0 (the material lies on z = 0)",
-            v.to_array()
-        );
+    if view[2] <= 0.0 {
+        bail!("view {view:?} is not above the surface: z must be > 0 (the material lies on z = 0)");
     }
-    let l = DVec3::from_array(light);
+    let (l, v) = (DVec3::from_array(light), DVec3::from_array(view));
     let mut scene = Scene::new(
-        if args.directional {
+        if directional {
             Light::Directional(l)
         } else {
             Light::Point(l)
         },
-        if args.orthographic {
+        if orthographic {
             View::Orthographic(v)
         } else {
             View::Point(v)
         },
     );
-    scene.intensity = args.intensity;
-    scene.falloff = args.falloff;
+    scene.intensity = intensity;
+    scene.falloff = falloff;
     scene.validate()?;
     Ok(scene)
 }
@@ -213,6 +225,14 @@ pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Resu
         })?;
         return Ok(material);
     }
+    let photo = load_photo(model, input, how)?;
+    crate::forecast::note_estimate_cost(model, photo.side())?;
+    Ok(model.estimate(&photo)?)
+}
+
+/// Reads a photo as `how` says (crop, resize, field of view), printing notes on what the
+/// estimator will make of it: an alpha channel, an EXIF rotation, many saturated pixels.
+pub fn load_photo(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Result<Photo> {
     if has_alpha(input) {
         eprintln!(
             "note: {} has an alpha channel; it is ignored (the photo's RGB is used as is)",
@@ -240,8 +260,7 @@ pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Resu
             );
         }
     }
-    crate::forecast::note_estimate_cost(model, photo.side())?;
-    Ok(model.estimate(&photo)?)
+    Ok(photo)
 }
 
 /// Whether an image file declares an alpha channel (read from its header only; `false`

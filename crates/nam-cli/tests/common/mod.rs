@@ -62,3 +62,13 @@ pub fn expect_failure(args: &[&str], out: &Path, needle: &str) {
         .collect();
     assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
 }
+
+/// A small square photo: the bundled example photo downscaled to `side` pixels (PNG).
+pub fn small_photo(dir: &Path, side: u32) -> PathBuf {
+    let img = image::open(root().join("assets/example_photo.png"))
+        .unwrap_or_else(|e| panic!("{e}"))
+        .resize_exact(side, side, image::imageops::FilterType::Triangle);
+    let path = dir.join(format!("photo{side}.png"));
+    img.save(&path).unwrap_or_else(|e| panic!("{e}"));
+    path
+}

@@ -16,7 +16,9 @@
 //! This file holds [`RenderNet`] (construction, sizes, multiply-add counts) and its public
 //! entry points; `tile.rs` the tile kernel they all run.
 
-use nam_weights::{DirectionWork, ModelConfig, RenderWork, Weights, radiance_from_log};
+use nam_weights::{
+    DirectionWork, LinearLayer, ModelConfig, RenderWork, Weights, radiance_from_log,
+};
 
 use crate::Source;
 use crate::bf16::{Bf16Dense, bf16_supported};
@@ -80,51 +82,10 @@ impl RenderNet {
 
     fn build(weights: &Weights, fold: bool) -> Result<Self> {
         let cfg = weights.config();
-        let nd_widths = &cfg.nd_enc;
-        let nd_layers = nd_widths.len() - 1;
-        let mut nd = Vec::with_capacity(nd_layers);
-        for i in 0..nd_layers {
-            let (inp, out) = (nd_widths[i], nd_widths[i + 1]);
-            let w = weights.get(&format!("nd_enc.l{i}.weight"), &[out, inp])?;
-            let slope = (i + 1 < nd_layers).then_some(cfg.slopes.nd_enc);
-            nd.push(Dense::from_w(w, out, inp, slope));
-        }
-        let r = &cfg.render;
-        let layers = r.len() - 1;
-        let slope_of = |i: usize| {
-            if i == 0 {
-                None
-            } else if i + 1 == layers {
-                Some(cfg.slopes.render_out)
-            } else {
-                Some(cfg.slopes.render_hidden)
-            }
-        };
-        let w0 = weights.get("render.l0.weight", &[r[1], r[0]])?;
-        let w1 = weights.get("render.l1.weight", &[r[2], r[1]])?;
-        let mut render = if fold {
-            // W01 = W1 · W0: [r2, r0].
-            let mut w01 = vec![0.0f32; r[2] * r[0]];
-            for o in 0..r[2] {
-                for i in 0..r[0] {
-                    let mut s = 0.0f64;
-                    for m in 0..r[1] {
-                        s += f64::from(w1[o * r[1] + m]) * f64::from(w0[m * r[0] + i]);
-                    }
-                    w01[o * r[0] + i] = s as f32;
-                }
-            }
-            vec![Dense::from_w(&w01, r[2], r[0], slope_of(1))]
-        } else {
-            vec![
-                Dense::from_w(w0, r[1], r[0], slope_of(0)),
-                Dense::from_w(w1, r[2], r[1], slope_of(1)),
-            ]
-        };
-        for i in 2..layers {
-            let w = weights.get(&format!("render.l{i}.weight"), &[r[i + 1], r[i]])?;
-            render.push(Dense::from_w(w, r[i + 1], r[i], slope_of(i)));
-        }
+        let layers = weights.render_layers(fold)?;
+        let dense = |l: &LinearLayer| Dense::from_w(&l.weight, l.out, l.inp, l.slope);
+        let nd = layers.nd_enc.iter().map(dense).collect();
+        let render: Vec<Dense> = layers.mlp.iter().map(dense).collect();
         // FNV-1a over the first layer's bits and shape.
         let first_id = render[0]
             .wt
