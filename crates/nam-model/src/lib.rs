@@ -27,6 +27,7 @@
 
 #![deny(unsafe_code)]
 
+mod amx;
 mod bf16;
 mod dense;
 pub mod encoding;
@@ -40,7 +41,7 @@ mod render;
 mod sgemm;
 mod unet;
 
-pub use bf16::bf16_supported;
+pub use bf16::{bf16_kernel, bf16_supported};
 pub use error::{ModelError, Result};
 pub use maps::{ParamMap, Rgb};
 pub use nam_ggx::geometry;

@@ -90,11 +90,17 @@ pub fn run(args: &Args) -> Result<()> {
         .map(|q| unit_direction([0.2, (q % 53) as f32 / 26.0 - 1.0, 1.0]))
         .collect();
     let mut out = vec![0.0f32; QUERIES * 3];
+    // The opt-in bf16 products (`--precision bf16`) where the CPU has them.
+    let bf16 = if nam_model::bf16_supported() {
+        Some(net.clone().with_bf16()?)
+    } else {
+        None
+    };
 
     // 2 flops per multiply-add, per run.
     let fl = |macs_per_item: usize, items: usize| 2.0 * macs_per_item as f64 * items as f64;
     let m = |prepared, constant| net.macs_per_output(prepared, constant);
-    let cases: Vec<Case<'_>> = vec![
+    let mut cases: Vec<Case<'_>> = vec![
         (
             format!("sgemm {sn}³ (roofline)"),
             0,
@@ -192,6 +198,23 @@ pub fn run(args: &Args) -> Result<()> {
             }),
         ),
     ];
+    if let Some(bf) = &bf16 {
+        cases.insert(
+            3,
+            (
+                format!(
+                    "general point relight {s}², bf16 ({})",
+                    nam_model::bf16_kernel()
+                ),
+                n,
+                fl(m(false, false), n),
+                Box::new(|| {
+                    bf.relight(&map, light, view)?;
+                    Ok(())
+                }),
+            ),
+        );
+    }
     let rows = measure(cases, rep)?;
     if !out.iter().all(|v| v.is_finite()) {
         bail!("query batch gave non-finite output");

@@ -115,7 +115,7 @@ impl RenderNet {
     }
 
     /// Switches the fused paths ([`Self::relight`], [`Self::render_batch`], …) to
-    /// bf16 products with f32 accumulation (AVX-512 BF16; ~2× faster, log-space
+    /// bf16 products with f32 accumulation (AVX-512 BF16 or AMX tiles; ~2× faster, log-space
     /// differences of order 1e-3) for ND_enc and the render layers after the
     /// first (which stays f32). Errors when the CPU lacks the instructions.
     pub fn with_bf16(mut self) -> Result<Self> {

@@ -1,0 +1,196 @@
+//! Intel AMX (Advanced Matrix Extensions) bf16 tile products for the bf16 dense
+//! layers ([`crate::bf16`]): `tdpbf16ps` multiplies a 16 × 32 bf16 tile by a
+//! 32 × 16 one into 16 × 16 f32 sums, the same bf16-products-f32-sums arithmetic
+//! as `vdpbf16ps`, on the core's matrix unit (Xeon Sapphire Rapids and later).
+//!
+//! The operands are the layouts [`crate::bf16`] already packs: activations as
+//! rows of bf16 pairs along k (an A tile is 16 rows × 16 pairs), weights as
+//! pairs along k per output column (a B tile is 16 pairs × 16 columns, the
+//! "VNNI" layout AMX expects). Rust has no stable AMX intrinsics, so the five
+//! instructions are inline assembly; Linux hands a process the 8 KiB tile state
+//! only after `arch_prctl(ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA)`, asked once.
+#![allow(unsafe_code)]
+
+use std::sync::OnceLock;
+
+/// k pairs per A/B tile (16 pairs = 32 bf16 = 64 bytes per tile row).
+pub(crate) const K_PAIRS: usize = 16;
+/// Rows of the output block (two A tiles).
+pub(crate) const M_BLOCK: usize = 32;
+/// Columns of the output block (two B tiles).
+pub(crate) const N_BLOCK: usize = 32;
+/// Rows and columns of one f32 accumulator tile.
+const TILE: usize = 16;
+
+/// True when this CPU has AMX-BF16 and the OS granted this process the tile
+/// state (checked once per process).
+pub(crate) fn available() -> bool {
+    static AVAILABLE: OnceLock<bool> = OnceLock::new();
+    *AVAILABLE.get_or_init(detect)
+}
+
+#[cfg(all(target_arch = "x86_64", target_os = "linux"))]
+fn detect() -> bool {
+    use std::arch::x86_64::__cpuid_count;
+    /// `arch_prctl` code asking for an extended state component (asm/prctl.h).
+    const ARCH_REQ_XCOMP_PERM: libc::c_ulong = 0x1023;
+    /// The AMX tile data state component (XTILEDATA, asm/fpu/types.h).
+    const XFEATURE_XTILEDATA: libc::c_ulong = 18;
+    // CPUID.(EAX=7, ECX=0):EDX bit 22 = AMX-BF16, bit 24 = AMX-TILE.
+    let edx = __cpuid_count(7, 0).edx;
+    if edx & (1 << 22) == 0 || edx & (1 << 24) == 0 {
+        return false;
+    }
+    // SAFETY: a plain system call with two integer arguments; it only changes
+    // which xsave components this process may use.
+    let granted = unsafe {
+        libc::syscall(
+            libc::SYS_arch_prctl,
+            ARCH_REQ_XCOMP_PERM,
+            XFEATURE_XTILEDATA,
+        )
+    };
+    granted == 0
+}
+
+#[cfg(not(all(target_arch = "x86_64", target_os = "linux")))]
+fn detect() -> bool {
+    false
+}
+
+/// The `ldtilecfg` operand: palette 1, eight 16-row × 64-byte tiles.
+#[repr(C, align(64))]
+struct TileConfig {
+    palette: u8,
+    start_row: u8,
+    reserved: [u8; 14],
+    colsb: [u16; 16],
+    rows: [u8; 16],
+}
+
+impl TileConfig {
+    fn all_full() -> Self {
+        let mut cfg = Self {
+            palette: 1,
+            start_row: 0,
+            reserved: [0; 14],
+            colsb: [0; 16],
+            rows: [0; 16],
+        };
+        for t in 0..8 {
+            cfg.colsb[t] = 64;
+            cfg.rows[t] = TILE as u8;
+        }
+        cfg
+    }
+}
+
+/// `y[r, o] = act(Σ_p a[r, p] · w[p, o])` for `r < m`, `o < out`, with bf16
+/// pairs `a` (`m_pad × kp` u32, `m_pad` a multiple of [`M_BLOCK`], `kp` of
+/// [`K_PAIRS`], rows past `m` zero) and `w` (`kp × out_pad` u32, `out_pad` a
+/// multiple of [`N_BLOCK`]); `act` maps each f32 sum (the LeakyReLU).
+///
+/// # Safety
+/// [`available`] must have returned true; the slices must have the sizes above.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn matmul(
+    m: usize,
+    kp: usize,
+    a: &[u32],
+    out: usize,
+    out_pad: usize,
+    w: &[u32],
+    y: &mut [f32],
+    ldy: usize,
+    act: impl Fn(f32) -> f32,
+) {
+    use std::arch::asm;
+    // Checked once per call: every tile load below stays inside `a` and `w`.
+    assert!(kp.is_multiple_of(K_PAIRS) && out_pad.is_multiple_of(N_BLOCK) && out <= out_pad);
+    assert!(a.len() >= m.div_ceil(M_BLOCK) * M_BLOCK * kp && w.len() >= kp * out_pad);
+    let cfg = TileConfig::all_full();
+    let (sa, sw) = (kp * 4, out_pad * 4);
+    let mut c = [[0.0f32; TILE]; TILE];
+    // SAFETY: (all asm below) `cfg` is a valid palette-1 configuration; every
+    // tile load reads 16 rows of 64 bytes inside `a` or `w` by the size
+    // contract; stores go to the 1 KiB `c`. Tiles tmm0–1 hold A, tmm2–3 B,
+    // tmm4–7 the four 16 × 16 sums of the 32 × 32 block.
+    unsafe {
+        asm!("ldtilecfg [{}]", in(reg) &cfg, options(nostack, readonly));
+    }
+    for i0 in (0..m).step_by(M_BLOCK) {
+        for j0 in (0..out.min(out_pad)).step_by(N_BLOCK) {
+            unsafe {
+                asm!(
+                    "tilezero tmm4",
+                    "tilezero tmm5",
+                    "tilezero tmm6",
+                    "tilezero tmm7",
+                    options(nostack, nomem)
+                );
+            }
+            for p0 in (0..kp).step_by(K_PAIRS) {
+                let a0 = a[i0 * kp + p0..].as_ptr();
+                let a1 = a[(i0 + TILE) * kp + p0..].as_ptr();
+                let b0 = w[p0 * out_pad + j0..].as_ptr();
+                let b1 = w[p0 * out_pad + j0 + TILE..].as_ptr();
+                unsafe {
+                    asm!(
+                        "tileloadd tmm0, [{a0} + {sa}*1]",
+                        "tileloadd tmm1, [{a1} + {sa}*1]",
+                        "tileloadd tmm2, [{b0} + {sw}*1]",
+                        "tileloadd tmm3, [{b1} + {sw}*1]",
+                        "tdpbf16ps tmm4, tmm0, tmm2",
+                        "tdpbf16ps tmm5, tmm0, tmm3",
+                        "tdpbf16ps tmm6, tmm1, tmm2",
+                        "tdpbf16ps tmm7, tmm1, tmm3",
+                        a0 = in(reg) a0,
+                        a1 = in(reg) a1,
+                        b0 = in(reg) b0,
+                        b1 = in(reg) b1,
+                        sa = in(reg) sa,
+                        sw = in(reg) sw,
+                        options(nostack, readonly)
+                    );
+                }
+            }
+            for (t, (di, dj)) in [(0, 0), (0, TILE), (TILE, 0), (TILE, TILE)]
+                .into_iter()
+                .enumerate()
+            {
+                let dst = c.as_mut_ptr().cast::<f32>();
+                unsafe {
+                    match t {
+                        0 => {
+                            asm!("tilestored [{p} + {s}*1], tmm4", p = in(reg) dst, s = in(reg) 64usize, options(nostack))
+                        }
+                        1 => {
+                            asm!("tilestored [{p} + {s}*1], tmm5", p = in(reg) dst, s = in(reg) 64usize, options(nostack))
+                        }
+                        2 => {
+                            asm!("tilestored [{p} + {s}*1], tmm6", p = in(reg) dst, s = in(reg) 64usize, options(nostack))
+                        }
+                        _ => {
+                            asm!("tilestored [{p} + {s}*1], tmm7", p = in(reg) dst, s = in(reg) 64usize, options(nostack))
+                        }
+                    }
+                }
+                let (r0, o0) = (i0 + di, j0 + dj);
+                if r0 >= m || o0 >= out {
+                    continue;
+                }
+                let cols = (out - o0).min(TILE);
+                for (r, row) in c.iter().enumerate().take(m - r0) {
+                    let dst = &mut y[(r0 + r) * ldy + o0..(r0 + r) * ldy + o0 + cols];
+                    for (d, &v) in dst.iter_mut().zip(row) {
+                        *d = act(v);
+                    }
+                }
+            }
+        }
+    }
+    unsafe {
+        asm!("tilerelease", options(nostack, nomem));
+    }
+}
