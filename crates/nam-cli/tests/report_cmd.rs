@@ -85,14 +85,15 @@ fn tiny_report_writes_a_table_with_finite_numbers_and_a_plot() {
             .find(|r| r[1] == label)
             .unwrap_or_else(|| panic!("no row {label:?} in\n{md}"))
     };
-    // Baselines, GGX and, for the model, CPU fast f32, the directional specialisation and the
-    // CPU reference (bf16 is listed as skipped on CPUs without AVX-512 BF16).
+    // Baselines, GGX and, for the model, CPU fast f32, the directional and interpolated
+    // specialisations and the CPU reference (bf16 is listed as skipped on CPUs without AVX-512 BF16).
     for label in [
         "printout",
         "diffuse fit",
         "GGX ground truth (analytic render)",
         "default · CPU fast · f32",
         "default · CPU fast · f32 · directional",
+        "default · CPU fast · f32 · ≤ 8°",
         "default · CPU reference · f32",
     ] {
         let r = find(label);

@@ -68,14 +68,24 @@ pub enum Specialisation {
     /// the CPU fast path or the GPU): ND_enc runs once per image. The protocol's point light and viewer are replaced by their
     /// directions from the material centre, so its error includes that approximation.
     Directional,
+    /// The protocol's point light and viewer with ND_enc on a coarser pixel grid
+    /// (`RenderNet::relight_interpolated`, CPU fast path): ωi and ωo turn at most this many
+    /// millidegrees between neighbouring grid nodes.
+    Interpolated(u32),
 }
 
 impl Specialisation {
     /// Short name for tables.
-    pub fn name(self) -> &'static str {
+    pub fn name(self) -> String {
         match self {
-            Specialisation::General => "—",
-            Specialisation::Directional => "directional (ND_enc once)",
+            Specialisation::General => "—".into(),
+            Specialisation::Directional => "directional (ND_enc once)".into(),
+            Specialisation::Interpolated(md) => {
+                format!(
+                    "interpolated ND_enc (≤ {}° per node)",
+                    f64::from(md) / 1000.0
+                )
+            }
         }
     }
 }
@@ -127,10 +137,10 @@ impl MethodSpec {
     }
 
     /// Specialisation column of the table.
-    pub fn specialisation_name(&self) -> &'static str {
+    pub fn specialisation_name(&self) -> String {
         match self {
             MethodSpec::Neural(c) => c.specialisation.name(),
-            _ => "—",
+            _ => "—".into(),
         }
     }
 
@@ -265,6 +275,13 @@ impl Prepared {
                 )));
             }
         }
+        if matches!(cfg.specialisation, Specialisation::Interpolated(_))
+            && cfg.backend != Backend::CpuFast
+        {
+            return Err(EvalError::Option(
+                "the interpolated specialisation runs on the CPU fast path".into(),
+            ));
+        }
         if cfg.specialisation == Specialisation::Directional && cfg.backend == Backend::CpuReference
         {
             return Err(EvalError::Option(
@@ -350,6 +367,21 @@ impl Prepared {
                     MethodSpec::Neural(c) if c.specialisation == Specialisation::Directional
                 );
                 let net = self.bf16.as_ref().unwrap_or(&model.cpu().render);
+                if let MethodSpec::Neural(NeuralConfig {
+                    specialisation: Specialisation::Interpolated(md),
+                    ..
+                }) = &self.spec
+                {
+                    // As the bf16 branch below: the facade's CPU path for protocol scenes.
+                    let angle = (*md as f32 / 1000.0).to_radians();
+                    let rgb = net.relight_interpolated(
+                        mat.params(),
+                        to32(lv.light),
+                        to32(lv.view),
+                        angle,
+                    )?;
+                    return Ok(rgb.data);
+                }
                 if directional {
                     // The point light and viewer seen from the origin, as a directional light
                     // and an orthographic view: the facade's constant-direction plan.

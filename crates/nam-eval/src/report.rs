@@ -30,6 +30,10 @@ pub struct ReportOptions {
     pub gpu: bool,
 }
 
+/// Bounds of the interpolated-ND_enc rows (millidegrees that ωi and ωo may turn between grid
+/// nodes): at the report's 64² and the protocols' light heights, grid steps of 1–9 pixels.
+const INTERPOLATION_BOUNDS_MILLIDEG: [u32; 4] = [1000, 2000, 4000, 8000];
+
 fn stem(p: &Path) -> String {
     p.file_stem()
         .and_then(|s| s.to_str())
@@ -38,7 +42,7 @@ fn stem(p: &Path) -> String {
 }
 
 /// The report's rows: the three baselines, then per model the CPU fast path (f32, bf16),
-/// the directional specialisation, the CPU reference and the GPU (f32, f16, f32 directional)
+/// the directional specialisation, interpolated ND_enc at several bounds, the CPU reference and the GPU (f32, f16, f32 directional)
 /// — the last two kinds on the subset.
 pub fn entries(o: &ReportOptions) -> Vec<Entry> {
     let full = |spec: MethodSpec, label: &str| Entry {
@@ -83,6 +87,14 @@ pub fn entries(o: &ReportOptions) -> Vec<Entry> {
             neural(CpuFast, F32, Directional),
             &format!("{name} · CPU fast · f32 · directional"),
         ));
+        // The error-vs-time curve of interpolated ND_enc (grid steps of 1–9 pixels at 64²
+        // for the protocol's light heights).
+        for md in INTERPOLATION_BOUNDS_MILLIDEG {
+            v.push(full(
+                neural(CpuFast, F32, Interpolated(md)),
+                &format!("{name} · CPU fast · f32 · ≤ {}°", f64::from(md) / 1000.0),
+            ));
+        }
         v.push(subset(
             neural(CpuReference, F32, General),
             format!("{name} · CPU reference · f32"),
@@ -282,7 +294,12 @@ pub fn markdown(res: &RunResults, meta: &ReportMeta) -> String {
          an orthographic view (ND_enc once per image, DESIGN §9; on the CPU, or on the GPU where \
          the backend says so; bf16 rows call `RenderNet::relight_directional`) with the \
          protocol's point light and viewer replaced by their directions from the material \
-         centre; its error includes that approximation.\n\
+         centre; its error includes that approximation. *Interpolated ND_enc (≤ x°)*: the \
+         protocol's point light and viewer, ND_enc evaluated only on a grid of pixels whose \
+         spacing keeps ωi and ωo within x° between neighbouring nodes (spacing = \
+         x·min(light, view height) surface units; below 2 pixels the general path runs), its 32 \
+         features bilinearly interpolated per pixel, the render MLP per pixel \
+         (`RenderNet::relight_interpolated`).\n\
          - **Pairs** come from nam-ggx's seeded sampler (SplitMix64, seed \
          `4242 + seed mod 100000 + 17·protocol`), which `train_py.evaluate` repeats draw for \
          draw on the same files: the two tables agree to 1e-5 in log-L1 \
@@ -350,7 +367,10 @@ mod tests {
             gpu: true,
         };
         let e = entries(&o);
-        assert_eq!(e.len(), 3 + 2 * 7);
+        let interp = INTERPOLATION_BOUNDS_MILLIDEG.len();
+        assert_eq!(e.len(), 3 + 2 * (7 + interp));
+        assert!(e.iter().any(|x| x.label == "a · CPU fast · f32 · ≤ 2°"
+            && x.spec.specialisation_name() == "interpolated ND_enc (≤ 2° per node)"));
         let reference = e
             .iter()
             .find(|x| x.label == "b · CPU reference · f32")
@@ -359,7 +379,7 @@ mod tests {
         assert_eq!(reference.pairs.hemisphere, 128);
         assert_eq!(reference.materials, 2);
         let no_gpu = entries(&ReportOptions { gpu: false, ..o });
-        assert_eq!(no_gpu.len(), 3 + 2 * 4);
+        assert_eq!(no_gpu.len(), 3 + 2 * (4 + interp));
     }
 
     #[test]

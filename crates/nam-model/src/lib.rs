@@ -47,7 +47,7 @@ pub use maps::{ParamMap, Rgb};
 pub use nam_ggx::geometry;
 pub use nam_weights::radiance_from_log;
 pub use prepared::{PreparedMaterial, Roi};
-pub use render::{DEFAULT_TILE, RenderNet};
+pub use render::{DEFAULT_TILE, RenderNet, interpolation_step};
 pub use unet::{MAX_SIDE, UNet};
 
 use nam_weights::Weights;

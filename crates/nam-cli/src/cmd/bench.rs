@@ -36,6 +36,8 @@ pub struct Args {
 const SGEMM_N: usize = 1024;
 /// Side of the region-of-interest row (clamped to the image).
 const ROI_SIDE: usize = 64;
+/// Bounds (degrees that ωi and ωo may turn between grid nodes) of the interpolated-ND_enc rows.
+const INTERPOLATION_BOUNDS_DEG: [f32; 3] = [0.5, 1.0, 2.0];
 /// Queries in the query-batch row.
 const QUERIES: usize = 4096;
 
@@ -198,6 +200,27 @@ pub fn run(args: &Args) -> Result<()> {
             }),
         ),
     ];
+    // Interpolated ND_enc: grid steps of 3, 7 and 15 pixels for this light at 256².
+    for (k, deg) in INTERPOLATION_BOUNDS_DEG.into_iter().enumerate() {
+        let step = nam_model::interpolation_step(light[2], view[2], s, s, deg.to_radians());
+        // Per pixel: the directional count plus W_d·f; ND_enc (the rest) per grid node.
+        let per_pixel = m(false, true) + net.nd_len() * net.hidden_len();
+        let lines = (s - 1).div_ceil(step) + 1;
+        let macs = per_pixel * n + (m(false, false) - per_pixel) * lines * lines;
+        let (map, net) = (&map, net);
+        cases.insert(
+            3 + k,
+            (
+                format!("point relight {s}², interpolated ND_enc ≤ {deg}° (grid step {step} px)"),
+                n,
+                fl(macs, 1),
+                Box::new(move || {
+                    net.relight_interpolated(map, light, view, deg.to_radians())?;
+                    Ok(())
+                }),
+            ),
+        );
+    }
     if let Some(bf) = &bf16 {
         cases.insert(
             3,

@@ -28,7 +28,10 @@ use crate::error::{ModelError, Result, check_finite, check_len};
 use crate::geometry::{Directions, pixel_position};
 use crate::maps::{ParamMap, Rgb};
 
+mod interpolated;
 mod tile;
+
+pub use interpolated::interpolation_step;
 
 pub(crate) use tile::{Base, Dirs, NoDirs};
 

@@ -6,6 +6,7 @@ use nam_weights::radiance_from_log;
 use rayon::prelude::*;
 
 use super::RenderNet;
+use super::interpolated::FeatureGrid;
 use crate::dense::chain;
 use crate::encoding::{direction_triple, encode_into};
 use crate::error::{Result, check_len};
@@ -28,6 +29,8 @@ pub(crate) enum Dirs<'a, F> {
     Features(&'a [f32]),
     /// One precomputed `W_d·ND_enc(…)` vector (`hidden`) for every output.
     Constant(&'a [f32]),
+    /// ND_enc rows interpolated from a grid of nodes (outputs are the image's pixels).
+    Grid(&'a FeatureGrid),
 }
 
 /// The `F` of a [`Dirs`] that is not [`Dirs::Each`].
@@ -43,7 +46,7 @@ pub(crate) struct Scratch {
     /// First render layer output (`n × hidden`).
     h: Vec<f32>,
     /// ND_enc output (`n × nd_len`).
-    nd: Vec<f32>,
+    pub(super) nd: Vec<f32>,
     log: Vec<f32>,
     pairs: Vec<u32>,
 }
@@ -112,7 +115,7 @@ impl RenderNet {
     }
 
     /// ND_enc features of `n` direction triples into `s.nd` (bf16 when active).
-    fn features_into(&self, s: &mut Scratch, n: usize, dir: impl Fn(usize) -> [f32; 9]) {
+    pub(super) fn features_into(&self, s: &mut Scratch, n: usize, dir: impl Fn(usize) -> [f32; 9]) {
         let e = self.encoded_len();
         let d = self.nd_len();
         for q in 0..n {
@@ -176,6 +179,10 @@ impl RenderNet {
                 None
             }
             Dirs::Features(f) => Some(&f[q0 * d..(q0 + n) * d]),
+            Dirs::Grid(g) => {
+                g.fill(q0, n, &mut s.nd);
+                None
+            }
             Dirs::Constant(_) => None,
         };
         let Scratch {
@@ -224,7 +231,7 @@ impl RenderNet {
                     }
                 }
             }
-            Dirs::Each(_) | Dirs::Features(_) => {
+            Dirs::Each(_) | Dirs::Features(_) | Dirs::Grid(_) => {
                 let f = feats.unwrap_or(&nd[..n * d]);
                 sgemm(
                     n,
