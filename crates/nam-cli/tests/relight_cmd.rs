@@ -989,3 +989,58 @@ fn a_failed_sweep_leaves_nothing_it_wrote() {
         5
     );
 }
+
+/// Issue 22: `--interpolate DEG` runs the interpolated-ND_enc relight on the CPU: close to the
+/// exact one, not identical; 0 is exact; a bound of 90° or more is refused without output.
+#[test]
+fn interpolate_is_an_opt_in_approximation_close_to_the_exact_relight() {
+    let dir = tmp();
+    let photo = small_photo(dir.path(), 32);
+    let relight = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let args = [
+            &[
+                "relight",
+                s(&photo),
+                "--light",
+                "1,0,3",
+                "--backend",
+                "cpu",
+                "-o",
+                s(&out),
+            ][..],
+            extra,
+        ]
+        .concat();
+        let o = run(&args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        read_exr(&out)
+    };
+    let exact = relight("exact.exr", &[]);
+    assert_eq!(relight("zero.exr", &["--interpolate", "0"]), exact);
+    // 10° at light height 3 over pixels of 2/32 units: a grid step of 8 pixels.
+    let approx = relight("approx.exr", &["--interpolate", "10"]);
+    assert_ne!(approx, exact);
+    let mean = exact
+        .iter()
+        .zip(&approx)
+        .map(|(a, b)| (a.ln_1p() - b.ln_1p()).abs())
+        .sum::<f32>()
+        / exact.len() as f32;
+    assert!(mean < 0.05, "mean |Δ log| {mean}");
+    let x = dir.path().join("x.exr");
+    expect_failure(
+        &[
+            "relight",
+            s(&photo),
+            "--light",
+            "1,0,3",
+            "--interpolate",
+            "90",
+            "-o",
+            s(&x),
+        ],
+        &x,
+        "interpolation bound",
+    );
+}

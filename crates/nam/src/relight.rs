@@ -36,7 +36,9 @@ fn above_surface(scene: &Scene) -> bool {
 /// The cheapest exact pipeline is picked (DESIGN §9), on the CPU and on an attached GPU
 /// alike: with a directional light *and* an orthographic view the positional encoding and
 /// ND_enc run once for the whole image and each pixel runs only the render MLP (≥ 5× faster);
-/// on the CPU memory beyond the output stays bounded by the tile scratch.
+/// on the CPU memory beyond the output stays bounded by the tile scratch. With
+/// [`NeuralModel::set_nd_interpolation`] the CPU also interpolates ND_enc between grid nodes
+/// for point lights (an approximation the caller opts into).
 pub fn relight(
     model: &NeuralModel,
     material: &NeuralMaterial,
@@ -75,8 +77,16 @@ pub fn relight_roi(
         Some(gpu) => gpu?,
         None => {
             let net = &model.cpu().render;
-            net.relight_sources(material.params(), light, view, roi)?
-                .data
+            match (model.nd_interpolation(), light, view) {
+                (Some(angle), Source::Point(l), Source::Point(v)) if roi == Roi::full(h, w) => {
+                    net.relight_interpolated(material.params(), l, v, angle)?
+                        .data
+                }
+                _ => {
+                    net.relight_sources(material.params(), light, view, roi)?
+                        .data
+                }
+            }
         }
     };
     for (k, (dst, src)) in img

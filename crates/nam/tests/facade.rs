@@ -517,3 +517,58 @@ fn large_eval_batches_run_on_an_attached_gpu_with_the_cpu_values() {
     let small = &queries[..100];
     assert_eq!(on_gpu.eval(small).expect("small"), want[..100].to_vec());
 }
+
+#[test]
+fn nd_interpolation_is_opt_in_bounded_and_leaves_rois_and_directional_scenes_exact() {
+    let mut model = tiny();
+    let m = grey_material(&model, 24);
+    let scene = Scene::new(
+        Light::Point(point(0.7, 0.4, 2.5)),
+        View::Point(point(0.0, -0.5, 4.0)),
+    );
+    let exact = relight(&model, &m, &scene).expect("relight");
+    assert_eq!(model.nd_interpolation(), None, "off by default");
+    for bad in [0.0, -1.0, 90.0, f64::NAN, f64::INFINITY] {
+        assert!(model.set_nd_interpolation(Some(bad)).is_err(), "{bad}");
+        assert_eq!(
+            model.nd_interpolation(),
+            None,
+            "a rejected bound changes nothing"
+        );
+    }
+    // 20°: a grid step of 10 pixels of 2/24 units at light height 2.5.
+    model.set_nd_interpolation(Some(20.0)).expect("valid bound");
+    let approx = relight(&model, &m, &scene).expect("relight");
+    let net = &model.cpu().render;
+    let (l, v) = ([0.7, 0.4, 2.5], [0.0, -0.5, 4.0]);
+    let direct = net
+        .relight_interpolated(m.params(), l, v, 20f32.to_radians())
+        .expect("interpolated");
+    assert_eq!(
+        approx.data(),
+        &direct.data[..],
+        "the facade runs the interpolated path"
+    );
+    assert_ne!(approx.data(), exact.data(), "and it is an approximation");
+    // A region of interest stays on the exact per-pixel path.
+    let roi = Roi {
+        row: 2,
+        col: 3,
+        height: 4,
+        width: 5,
+    };
+    let part = relight_roi(&model, &m, &scene, roi).expect("roi");
+    for i in 0..4 {
+        for j in 0..5 {
+            let (a, b) = (part.pixel(i, j), exact.pixel(2 + i, 3 + j));
+            for c in 0..3 {
+                assert!((a[c] - b[c]).abs() <= SAME_PATH_TOL * (1.0 + b[c].abs()));
+            }
+        }
+    }
+    model.set_nd_interpolation(None).expect("off again");
+    assert_eq!(
+        relight(&model, &m, &scene).expect("relight").data(),
+        exact.data()
+    );
+}
