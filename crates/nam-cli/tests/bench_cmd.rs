@@ -12,10 +12,14 @@ fn run(args: &[&str]) -> Output {
 }
 
 /// Rows the table must have, in order (prefixes of the first column).
-const ROWS: [&str; 11] = [
+/// (The bf16 row, present only on CPUs with AVX-512 BF16, is checked apart.)
+const ROWS: [&str; 14] = [
     "sgemm 1024³",
     "estimate 32²",
     "general point relight 32²",
+    "point relight 32², interpolated ND_enc ≤ 0.5°",
+    "point relight 32², interpolated ND_enc ≤ 1°",
+    "point relight 32², interpolated ND_enc ≤ 2°",
     "general point relight 32², l0·l1 unfolded",
     "directional + orthographic 32²",
     "directional + orthographic 32², l0·l1 unfolded",
@@ -44,9 +48,18 @@ fn bench_prints_one_measured_row_per_path() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(stdout.contains("2 threads"), "{stdout}");
-    let rows = table_rows(&stdout);
+    // The bf16 row names its kernel (AMX tiles or AVX-512 BF16) and exists only where the CPU
+    // has the instructions.
+    let (bf16, rows): (Vec<_>, Vec<_>) = table_rows(&stdout)
+        .into_iter()
+        .partition(|r| r[0].contains(", bf16 ("));
+    assert!(bf16.len() <= 1, "{stdout}");
     assert_eq!(rows.len(), ROWS.len(), "{stdout}");
-    for (row, want) in rows.iter().zip(ROWS) {
+    let wanted = ROWS
+        .iter()
+        .copied()
+        .chain(bf16.iter().map(|_| "general point relight 32², bf16"));
+    for (row, want) in rows.iter().chain(&bf16).zip(wanted) {
         assert_eq!(row.len(), 6, "{row:?}");
         assert!(row[0].starts_with(want), "{} vs {want}", row[0]);
         let ms: f64 = row[2].parse().unwrap_or_else(|_| panic!("ms of {row:?}"));
@@ -60,7 +73,7 @@ fn bench_prints_one_measured_row_per_path() {
     // Speedups are per item against the general point relight (row 2).
     assert_eq!(rows[2][4], "1.00");
     assert_eq!(rows[0][4], "—");
-    for row in &rows[3..] {
+    for row in rows[3..].iter().chain(&bf16) {
         let x: f64 = row[4]
             .parse()
             .unwrap_or_else(|_| panic!("speedup of {row:?}"));
@@ -68,8 +81,8 @@ fn bench_prints_one_measured_row_per_path() {
     }
     // Item counts: 32² pixels, the whole image as ROI (64 clamped to 32), 4096 queries.
     assert_eq!(rows[2][1], "1024");
-    assert_eq!(rows[9][1], "1024");
-    assert_eq!(rows[10][1], "4096");
+    assert_eq!(rows[12][1], "1024");
+    assert_eq!(rows[13][1], "4096");
 }
 
 #[test]
