@@ -205,6 +205,15 @@ def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
     return torch.where(x <= 0.04045, x / 12.92, torch.pow((x + 0.055) / 1.055, 2.4))
 
 
+#: An 8-bit sRGB capture value at or above this (any channel) counts as clipped.
+CLIP_LEVEL = 254.5 / 255
+
+
+def clipped(photo: torch.Tensor) -> torch.Tensor:
+    """Where a linear photo ``[..., 3]`` (an 8-bit capture decoded) clipped in any channel: ``[...]``."""
+    return (srgb_encode(photo) >= CLIP_LEVEL).any(-1)
+
+
 def ldr_capture(radiance: torch.Tensor) -> torch.Tensor:
     """What an 8-bit sRGB PNG keeps of an HDR render: clamp, quantise, decode back to linear."""
     return srgb_decode(torch.round(srgb_encode(radiance) * 255.0) / 255.0)

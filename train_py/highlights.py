@@ -39,8 +39,6 @@ REFERENCE_SIZE = 256
 PEAK_SIGMA = 4.0
 PEAK_TOLERANCE_PX = 10.0
 CLIPPED_RATIO = (0.5, 2.0)
-#: An 8-bit capture value at or above this (any channel) counts as clipped.
-CLIP_LEVEL = 254.5 / 255
 
 
 def glossy(maps: dict[str, torch.Tensor], index: int) -> dict[str, torch.Tensor]:
@@ -86,7 +84,7 @@ def run(model, size: int = REFERENCE_SIZE, count: int | None = None) -> dict[str
     for i, path in enumerate(files):
         maps = glossy(materials.load_maps(path, size), i)
         photo = ggx.ldr_capture(ggx.render_capture(maps))
-        clipped = (ggx.srgb_encode(photo[0]) >= CLIP_LEVEL).any(-1)
+        clipped = ggx.clipped(photo[0])
         params = None
         if model is not None:
             with torch.no_grad():

@@ -56,7 +56,7 @@ NORM_EPS = 1e-6
 DISPLAY_EPS = 1e-3
 
 
-def display_l1(pred_log: torch.Tensor, target_log: torch.Tensor) -> torch.Tensor:
+def display_l1(pred_log: torch.Tensor, target_log: torch.Tensor, weights: torch.Tensor | None = None) -> torch.Tensor:
     """L1 between ``(clamp(R, 0, 1) + ε)^(1/2.2)`` of prediction and target: the error as a display
     shows it. Log-L1 ≈ linear L1 for dark radiance, so a dark material's colour costs it almost
     nothing; in display space the same error is ~20× larger. An offline stand-in for the paper's
@@ -64,7 +64,7 @@ def display_l1(pred_log: torch.Tensor, target_log: torch.Tensor) -> torch.Tensor
     pred = torch.expm1(pred_log.clamp(min=0)).clamp(max=1)
     target = torch.expm1(target_log).clamp(0, 1)
     gamma = 1 / 2.2
-    return ((pred + DISPLAY_EPS) ** gamma - (target + DISPLAY_EPS) ** gamma).abs().mean()
+    return weighted_mean(((pred + DISPLAY_EPS) ** gamma - (target + DISPLAY_EPS) ** gamma).abs(), weights)
 
 
 #: Offset of the chromaticity term's denominator (linear radiance): below ~this brightness a
@@ -161,8 +161,44 @@ def gather_rows(x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
     return out.reshape(b, k, n, x.shape[-1])
 
 
+#: Offset of the specular share's denominator (linear radiance): black pixels have share 0.
+SHARE_EPS = 1e-4
+
+
+def specular_share(radiance: torch.Tensor, diffuse: torch.Tensor, normal: torch.Tensor, wi: torch.Tensor):
+    """Share ``[...]`` in [0, 1] of the GGX radiance ``[..., 3]`` that is not the Lambertian term
+    ``diffuse · max(n·wi, 0)``: ~1 inside a highlight, ~0 on a matte surface or away from it."""
+    lambert = diffuse * ggx.dot(normal, wi).clamp(min=0).unsqueeze(-1)
+    return ((radiance - lambert).sum(-1) / (radiance.sum(-1) + SHARE_EPS)).clamp(0, 1)
+
+
+def highlight_weights(share: torch.Tensor, clipped: torch.Tensor, weight: float) -> torch.Tensor:
+    """``train --highlight-weight``: per-query loss weights ``1 + weight · max(share, clipped)``
+    ``[B, K, n]``. A highlight covers a few percent of a glossy exemplar's pixels, and where the
+    photo clipped the model has to undo the capture highlight it sees there; uniform pixel
+    weights let both cost little against the matte rest of the image (issue 24's highlight test
+    scores exactly these two places)."""
+    return 1 + weight * torch.maximum(share, clipped.to(share.dtype))
+
+
+def weighted_mean(err: torch.Tensor, weights: torch.Tensor | None) -> torch.Tensor:
+    """Mean of ``err`` ``[B, K, n, C]`` with per-query ``weights`` ``[B, K, n]`` (None: plain mean)."""
+    if weights is None:
+        return err.mean()
+    return (err * weights.unsqueeze(-1)).sum() / (weights.sum() * err.shape[-1])
+
+
+def capture_clipped(net_input: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """Whether the capture photo clipped at the selected pixels ``idx`` ``[B, K, n]``: the network
+    input's log RGB decoded back to the 8-bit photo's linear values."""
+    b = net_input.shape[0]
+    photo = torch.expm1(net_input[:, :3].float()).permute(0, 2, 3, 1).reshape(b, -1, 3)
+    return gather_rows(ggx.clipped(photo).unsqueeze(-1), idx)[..., 0]
+
+
 def exemplar_targets(maps, light, view, idx):
-    """GGX log radiance and query directions at the selected pixels: ``[B, K, n, 3]``, ``[B, K, n, 9]``."""
+    """GGX log radiance, query directions and :func:`specular_share` at the selected pixels:
+    ``[B, K, n, 3]``, ``[B, K, n, 9]``, ``[B, K, n]``."""
     b = idx.shape[0]
     h, w = maps["roughness"].shape[1:3]
     pos = ggx.pixel_positions(h, w, light.dtype, light.device).reshape(1, h * w, 3).expand(b, h * w, 3)
@@ -172,7 +208,8 @@ def exemplar_targets(maps, light, view, idx):
     flat = {key: v.reshape(b, h * w, -1) for key, v in maps.items()}
     sel = {key: gather_rows(v, idx) for key, v in flat.items()}
     radiance = ggx.ggx_radiance(sel["diffuse"], sel["specular"], sel["roughness"][..., 0], sel["normal"], wi, wo)
-    return ggx.to_log(radiance), query_dirs(wi, wo)
+    share = specular_share(radiance, sel["diffuse"], sel["normal"], wi)
+    return ggx.to_log(radiance), query_dirs(wi, wo), share
 
 
 class TrainStep(nn.Module):
@@ -199,7 +236,9 @@ class TrainStep(nn.Module):
             light, view = light.expand(b, k, 3), view.expand(b, k, 3)
         else:
             idx = select_pixels(params, k, frac, sel_gen)
-        target, dirs = exemplar_targets(maps, light, view, idx)
+        target, dirs, share = exemplar_targets(maps, light, view, idx)
+        #: The step's pixel indices ``[B, K, n]`` and specular shares, for ``--highlight-weight``.
+        self.last_idx, self.last_share = idx, share
         p = gather_rows(params.permute(0, 2, 3, 1).reshape(b, -1, PARAM_CHANNELS), idx)
         if self.shared_geometry:
             nd = self.model.nd_enc(positional_encoding(dirs[0]))
@@ -332,6 +371,13 @@ def parse_args(argv=None):
         type=float,
         default=0.0,
         help="weight of a display-space L1 term added to the log-L1 loss (0: log-L1 only, as before)",
+    )
+    ap.add_argument(
+        "--highlight-weight",
+        type=float,
+        default=0.0,
+        help="queries inside a highlight (specular share of the target) or where the capture clipped "
+        "weigh up to 1 + this in the log and display terms (0: uniform, the paper)",
     )
     ap.add_argument(
         "--chroma-weight",
@@ -500,9 +546,13 @@ def train(args) -> dict:
             pred, target = step_module(
                 net_input, outputs, args.pixel_frac, data_gen, maps, light.to(device), view.to(device)
             )
-        loss = (pred.float() - target).abs().mean()
+        weights = None
+        if args.highlight_weight:
+            clipped = capture_clipped(net_input, trainer.last_idx)
+            weights = highlight_weights(trainer.last_share, clipped, args.highlight_weight)
+        loss = weighted_mean((pred.float() - target).abs(), weights)
         if args.display_weight:
-            loss = loss + args.display_weight * display_l1(pred.float(), target)
+            loss = loss + args.display_weight * display_l1(pred.float(), target, weights)
         if args.chroma_weight:
             loss = loss + args.chroma_weight * chroma_l1(pred.float(), target)
         if args.latent_weight:

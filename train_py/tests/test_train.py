@@ -15,13 +15,17 @@ from train_py.train import (
     ActivationExcess,
     TrainStep,
     bottleneck_excess,
+    capture_clipped,
     chroma_l1,
     display_l1,
     exemplar_targets,
     gather_rows,
+    highlight_weights,
     make_batch,
     select_pixels,
     select_shared_pixels,
+    specular_share,
+    weighted_mean,
     with_input_skip,
 )
 
@@ -223,7 +227,7 @@ def test_shared_geometry_step_is_the_per_material_step_with_one_nd_enc_per_exemp
     assert all(len(set(row.tolist())) == 128 for row in idx[0])
     # The same rows through the per-material path (ND_enc evaluated for every material).
     lv = light.expand(3, 3, 3), view.expand(3, 3, 3)
-    want_target, dirs = exemplar_targets(maps, *lv, idx)
+    want_target, dirs, _ = exemplar_targets(maps, *lv, idx)
     params = model.estimate(net_input).permute(0, 2, 3, 1).reshape(3, -1, 64)
     want = model.render_log(gather_rows(params, idx).reshape(-1, 64), dirs.reshape(-1, 9), True)
     torch.testing.assert_close(target, want_target, rtol=0, atol=0)
@@ -336,3 +340,40 @@ def test_activation_penalty_sees_every_unet_tensor_and_only_while_training():
     m.train()
     m.estimate(x)
     assert float(loose.take()) == 0.0
+
+
+def test_highlight_weights_find_the_mirror_highlight_and_the_clipped_pixels():
+    # A flat glossy material lit and seen along the mirror direction of pixel (8, 8) of 17².
+    size = 17
+    pos = ggx.pixel_positions(size, size, torch.float32, "cpu").reshape(-1, 3)
+    light, view = torch.tensor([0.0, 0.0, 2.0]), torch.tensor([0.0, 0.0, 2.0])
+    wi, wo = ggx.normalize(light - pos), ggx.normalize(view - pos)
+    n = torch.tensor([0.0, 0.0, 1.0]).expand_as(pos)
+    diffuse = torch.full_like(pos, 0.2)
+    glossy = ggx.ggx_radiance(diffuse, torch.full_like(pos, 0.04), torch.full((size * size,), 0.1), n, wi, wo)
+    share = specular_share(glossy, diffuse, n, wi)
+    centre, corner = size * (size // 2) + size // 2, 0
+    assert float(share[centre]) > 0.9 and float(share[corner]) < 0.05
+    # A rough dielectric is mostly Lambertian everywhere; black and invisible pixels have share 0.
+    rough = ggx.ggx_radiance(diffuse, torch.full_like(pos, 0.04), torch.ones(size * size), n, wi, wo)
+    assert float(specular_share(rough, diffuse, n, wi).max()) < 0.2
+    below = ggx.normalize(torch.tensor([1.0, 0.0, -0.2])).expand_as(pos)
+    zero = ggx.ggx_radiance(diffuse, torch.full_like(pos, 0.04), torch.ones(size * size), n, wi, below)
+    assert float(specular_share(zero, diffuse, n, wi).abs().max()) == 0.0
+    # Clipped capture pixels, read back from the network input, get the full weight too.
+    photo = torch.full((1, size, size, 3), 0.3)
+    photo[0, 2, 3] = torch.tensor([1.0, 0.5, 0.5])  # one channel at 255
+    photo[0, 4, 4] = 0.98  # bright, not clipped (sRGB 253)
+    idx = torch.arange(size * size).reshape(1, 1, -1)
+    clipped = capture_clipped(ggx.network_input(ggx.ldr_capture(photo)), idx)[0, 0]
+    assert clipped.nonzero().flatten().tolist() == [2 * size + 3]
+    w = highlight_weights(share[None, None], clipped[None, None], 4.0)[0, 0]
+    assert float(w[2 * size + 3]) == 5.0 and float(w[centre]) > 4.6 and float(w[corner]) < 1.2
+    assert float(w.min()) >= 1.0
+    # The weighted mean: plain mean without weights, and the weights only rescale queries.
+    err = torch.rand(1, 1, size * size, 3)
+    assert torch.equal(weighted_mean(err, None), err.mean())
+    torch.testing.assert_close(weighted_mean(err, torch.full((1, 1, size * size), 3.0)), err.mean())
+    focus = torch.ones(1, 1, size * size)
+    focus[0, 0, centre] = 1e6
+    torch.testing.assert_close(weighted_mean(err, focus), err[0, 0, centre].mean(), rtol=1e-3, atol=0)
