@@ -1,9 +1,9 @@
 //! Which model and where it runs: `--model`, `--backend auto|cpu|gpu`,
-//! `--precision f32|bf16|f16`.
+//! `--precision f32|bf16|int8|fastest|f16`.
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
-use nam::NeuralModel;
+use nam::{CpuPrecision, NeuralModel};
 use std::path::PathBuf;
 
 /// Where the networks run.
@@ -18,8 +18,9 @@ pub enum Backend {
     Gpu,
 }
 
-/// The networks' arithmetic (every precision accumulates in f32). Named for what runs: the CPU
-/// fast path has bf16 products (AVX-512 BF16), the GPU f16 storage and products (SHADER_F16).
+/// The networks' arithmetic (sums in f32, or exact i32 for int8). Named for what runs: the CPU
+/// fast path has bf16 products (AVX-512 BF16) and int8 products (AVX-512 VNNI), the GPU f16
+/// storage and products (SHADER_F16).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum PrecisionArg {
     /// f32 throughout (every backend).
@@ -27,6 +28,12 @@ pub enum PrecisionArg {
     /// bf16 products of the CPU fast path (needs AVX-512 BF16); `--backend auto` then stays on
     /// the CPU.
     Bf16,
+    /// int8 products of the CPU fast path (needs AVX-512 VNNI); `--backend auto` then stays on
+    /// the CPU.
+    Int8,
+    /// The fastest of f32, bf16 and int8 on this CPU, measured on one tile at start-up; `--backend
+    /// auto` then stays on the CPU.
+    Fastest,
     /// f16 storage and products on the GPU (needs SHADER_F16).
     F16,
 }
@@ -40,8 +47,9 @@ pub struct ModelArgs {
     /// Where the networks run.
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
-    /// Arithmetic of the networks: `bf16` runs on the CPU (AVX-512 BF16), `f16` on the GPU
-    /// (SHADER_F16); a precision the backend lacks falls back to f32 with a note.
+    /// Arithmetic of the networks: `bf16` and `int8` run on the CPU (AVX-512 BF16 / VNNI),
+    /// `fastest` times them there and keeps the fastest, `f16` runs on the GPU (SHADER_F16); a
+    /// precision the backend lacks falls back to f32 with a note.
     #[arg(long, value_enum, default_value_t = PrecisionArg::F32)]
     pub precision: PrecisionArg,
 }
@@ -56,33 +64,55 @@ impl ModelArgs {
             None => NeuralModel::embedded().context("loading the embedded model")?,
         };
         let gpu_allowed = match (self.backend, self.precision) {
-            (Backend::Cpu, _) | (Backend::Auto, PrecisionArg::Bf16) => false,
+            (Backend::Cpu, _)
+            | (Backend::Auto, PrecisionArg::Bf16 | PrecisionArg::Int8 | PrecisionArg::Fastest) => {
+                false
+            }
             (Backend::Gpu | Backend::Auto, _) => true,
         };
         if gpu_allowed && attach_gpu(&mut model, self)? {
             return Ok(model);
         }
         let precision = match self.precision {
-            PrecisionArg::F32 => "f32",
-            PrecisionArg::Bf16 => match model.enable_cpu_bf16() {
-                Ok(()) => "bf16",
-                Err(e) => {
-                    eprintln!(
-                        "note: --precision bf16 unavailable on this CPU ({e}); computing in f32"
-                    );
-                    "f32"
-                }
-            },
+            PrecisionArg::F32 => "f32".to_string(),
+            PrecisionArg::Bf16 => cpu_precision(&mut model, CpuPrecision::Bf16),
+            PrecisionArg::Int8 => cpu_precision(&mut model, CpuPrecision::Int8),
+            PrecisionArg::Fastest => {
+                let times = model
+                    .use_fastest_cpu_precision()
+                    .context("timing the CPU precisions")?;
+                let probe: Vec<String> = times
+                    .iter()
+                    .map(|t| format!("{} {:.2} ms", t.precision.name(), t.ms))
+                    .collect();
+                format!(
+                    "{}, the fastest per tile: {}",
+                    model.cpu_precision().name(),
+                    probe.join(", ")
+                )
+            }
             PrecisionArg::F16 => {
                 eprintln!(
-                    "note: --precision f16 runs on a GPU only (the CPU has bf16: --precision bf16); \
-                     computing in f32"
+                    "note: --precision f16 runs on a GPU only (the CPU has bf16 and int8: \
+                     --precision bf16|int8); computing in f32"
                 );
-                "f32"
+                "f32".to_string()
             }
         };
         eprintln!("backend: CPU ({precision})");
         Ok(model)
+    }
+}
+
+/// Switches the CPU products to `precision`, or says why not and keeps f32.
+fn cpu_precision(model: &mut NeuralModel, precision: CpuPrecision) -> String {
+    let name = precision.name();
+    match model.set_cpu_precision(precision) {
+        Ok(()) => name.to_string(),
+        Err(e) => {
+            eprintln!("note: --precision {name} unavailable on this CPU ({e}); computing in f32");
+            "f32".to_string()
+        }
     }
 }
 
@@ -112,9 +142,12 @@ fn attach_gpu(model: &mut NeuralModel, args: &ModelArgs) -> Result<bool> {
             gpu.info.name
         );
     }
-    if args.precision == PrecisionArg::Bf16 {
+    if let PrecisionArg::Bf16 | PrecisionArg::Int8 | PrecisionArg::Fastest = args.precision {
         eprintln!(
-            "note: --precision bf16 runs on the CPU only (the GPU has f16); computing in f32"
+            "note: --precision {} runs on the CPU only (the GPU has f16); computing in f32",
+            args.precision
+                .to_possible_value()
+                .map_or_else(String::new, |v| v.get_name().to_string())
         );
     }
     let precision = if f16 { Precision::F16 } else { Precision::F32 };

@@ -12,7 +12,7 @@ fn run(args: &[&str]) -> Output {
 }
 
 /// Rows the table must have, in order (prefixes of the first column).
-/// (The bf16 row, present only on CPUs with AVX-512 BF16, is checked apart.)
+/// (The bf16 and int8 rows, present only on CPUs with AVX-512 BF16 / VNNI, are checked apart.)
 const ROWS: [&str; 14] = [
     "sgemm 1024³",
     "estimate 32²",
@@ -48,18 +48,23 @@ fn bench_prints_one_measured_row_per_path() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(stdout.contains("2 threads"), "{stdout}");
-    // The bf16 row names its kernel (AMX tiles or AVX-512 BF16) and exists only where the CPU
-    // has the instructions.
-    let (bf16, rows): (Vec<_>, Vec<_>) = table_rows(&stdout)
+    // The bf16 and int8 rows name their kernels (AMX tiles, AVX-512 BF16, AVX-512 VNNI) and
+    // exist only where the CPU has the instructions, in that order.
+    let (reduced, rows): (Vec<_>, Vec<_>) = table_rows(&stdout)
         .into_iter()
-        .partition(|r| r[0].contains(", bf16 ("));
-    assert!(bf16.len() <= 1, "{stdout}");
+        .partition(|r| r[0].contains(", bf16 (") || r[0].contains(", int8 ("));
+    assert!(reduced.len() <= 2, "{stdout}");
     assert_eq!(rows.len(), ROWS.len(), "{stdout}");
-    let wanted = ROWS
-        .iter()
-        .copied()
-        .chain(bf16.iter().map(|_| "general point relight 32², bf16"));
-    for (row, want) in rows.iter().chain(&bf16).zip(wanted) {
+    let mut kinds = vec![];
+    if nam_model::bf16_supported() {
+        kinds.push("general point relight 32², bf16 (");
+    }
+    if nam_model::int8_supported() {
+        kinds.push("general point relight 32², int8 (AVX-512 VNNI)");
+    }
+    assert_eq!(reduced.len(), kinds.len(), "{stdout}");
+    let wanted = ROWS.iter().copied().chain(kinds);
+    for (row, want) in rows.iter().chain(&reduced).zip(wanted) {
         assert_eq!(row.len(), 6, "{row:?}");
         assert!(row[0].starts_with(want), "{} vs {want}", row[0]);
         let ms: f64 = row[2].parse().unwrap_or_else(|_| panic!("ms of {row:?}"));
@@ -73,7 +78,7 @@ fn bench_prints_one_measured_row_per_path() {
     // Speedups are per item against the general point relight (row 2).
     assert_eq!(rows[2][4], "1.00");
     assert_eq!(rows[0][4], "—");
-    for row in rows[3..].iter().chain(&bf16) {
+    for row in rows[3..].iter().chain(&reduced) {
         let x: f64 = row[4]
             .parse()
             .unwrap_or_else(|_| panic!("speedup of {row:?}"));

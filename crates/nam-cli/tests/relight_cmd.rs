@@ -28,6 +28,21 @@ fn assert_plausible_relight(path: &Path) {
     assert!(mean > 5.0 && mean < 250.0, "implausible mean code {mean}");
 }
 
+/// Mean log-space difference between relights with int8 and f32 products on a small real-looking
+/// photo (`--precision int8`, where the CPU has AVX-512 VNNI); the facade's `cpu_precision` test
+/// measures 3.3e-3 on the bundled photo at 64².
+const INT8_MEAN_LOG_TOL: f32 = 1e-2;
+
+/// Mean `|ln(1 + a) − ln(1 + b)|` over two radiance images.
+fn mean_log_difference(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a.ln_1p() - b.ln_1p()).abs())
+        .sum::<f32>()
+        / a.len() as f32
+}
+
 fn read_exr(path: &Path) -> Vec<f32> {
     read_rgb(path)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -613,6 +628,24 @@ fn precision_names_what_runs_and_falls_back_to_f32_with_a_note() {
         "{err}"
     );
     assert!(bf16.iter().all(|v| v.is_finite()));
+    // int8 likewise (AVX-512 VNNI): close to f32 in log space where it runs.
+    let (err, int8) = relight("int8.exr", &["--precision", "int8"]);
+    if err.contains("backend: CPU (int8)") {
+        let mean = mean_log_difference(&int8, &f32_cpu);
+        assert!(
+            mean < INT8_MEAN_LOG_TOL,
+            "int8 vs f32: mean log difference {mean}"
+        );
+    } else {
+        assert!(err.contains("unavailable on this CPU"), "{err}");
+    }
+    // `fastest` times every precision the CPU has and says which it kept.
+    let (err, fastest) = relight("fastest.exr", &["--precision", "fastest"]);
+    assert!(
+        err.contains("the fastest per tile: f32 ") && err.contains(" ms"),
+        "{err}"
+    );
+    assert!(fastest.iter().all(|v| v.is_finite()));
     // The old flag, which meant bf16 on the CPU, is gone rather than misleading.
     let x = dir.path().join("x.exr");
     expect_failure(&["relight", s(&photo), "--f16", "-o", s(&x)], &x, "--f16");
@@ -1021,12 +1054,7 @@ fn interpolate_is_an_opt_in_approximation_close_to_the_exact_relight() {
     // 10° at light height 3 over pixels of 2/32 units: a grid step of 8 pixels.
     let approx = relight("approx.exr", &["--interpolate", "10"]);
     assert_ne!(approx, exact);
-    let mean = exact
-        .iter()
-        .zip(&approx)
-        .map(|(a, b)| (a.ln_1p() - b.ln_1p()).abs())
-        .sum::<f32>()
-        / exact.len() as f32;
+    let mean = mean_log_difference(&exact, &approx);
     assert!(mean < 0.05, "mean |Δ log| {mean}");
     let x = dir.path().join("x.exr");
     expect_failure(

@@ -44,6 +44,8 @@ pub enum Precision {
     F32,
     /// CPU render MLP with bf16 products and f32 sums (`RenderNet::with_bf16`, AVX-512 BF16).
     Bf16,
+    /// CPU render MLP with int8 products and i32 sums (`RenderNet::with_int8`, AVX-512 VNNI).
+    Int8,
     /// GPU f16 storage, f32 arithmetic (`nam_gpu::Precision::F16`, `SHADER_F16`).
     F16,
 }
@@ -54,6 +56,7 @@ impl Precision {
         match self {
             Precision::F32 => "f32",
             Precision::Bf16 => "bf16",
+            Precision::Int8 => "int8",
             Precision::F16 => "f16",
         }
     }
@@ -225,8 +228,8 @@ fn attach_gpu(_: &mut NeuralModel, _: Precision, _: Option<&GpuDevice>) -> Resul
 pub struct Prepared {
     spec: MethodSpec,
     model: Option<NeuralModel>,
-    /// The bf16 render network (the facade relights with the f32 one).
-    bf16: Option<RenderNet>,
+    /// The bf16 or int8 render network (the facade relights with the f32 one).
+    reduced: Option<RenderNet>,
     width: usize,
 }
 
@@ -253,16 +256,19 @@ impl Prepared {
             return Ok(Self {
                 spec: spec.clone(),
                 model: None,
-                bf16: None,
+                reduced: None,
                 width: 0,
             });
         };
         let mut model = NeuralModel::from_file(&cfg.model)?;
-        let mut bf16 = None;
+        let mut reduced = None;
         match (cfg.backend, cfg.precision) {
             (Backend::CpuReference | Backend::CpuFast, Precision::F32) => {}
             (Backend::CpuFast, Precision::Bf16) => {
-                bf16 = Some(model.cpu().render.clone().with_bf16()?);
+                reduced = Some(model.cpu().render.clone().with_bf16()?);
+            }
+            (Backend::CpuFast, Precision::Int8) => {
+                reduced = Some(model.cpu().render.clone().with_int8()?);
             }
             (Backend::Gpu, Precision::F32 | Precision::F16) => {
                 attach_gpu(&mut model, cfg.precision, gpu)?;
@@ -292,7 +298,7 @@ impl Prepared {
         Ok(Self {
             spec: spec.clone(),
             model: Some(model),
-            bf16,
+            reduced,
             width,
         })
     }
@@ -366,13 +372,13 @@ impl Prepared {
                     &self.spec,
                     MethodSpec::Neural(c) if c.specialisation == Specialisation::Directional
                 );
-                let net = self.bf16.as_ref().unwrap_or(&model.cpu().render);
+                let net = self.reduced.as_ref().unwrap_or(&model.cpu().render);
                 if let MethodSpec::Neural(NeuralConfig {
                     specialisation: Specialisation::Interpolated(md),
                     ..
                 }) = &self.spec
                 {
-                    // As the bf16 branch below: the facade's CPU path for protocol scenes.
+                    // As the reduced-precision branch below: the facade's CPU path for protocol scenes.
                     let angle = (*md as f32 / 1000.0).to_radians();
                     let rgb = net.relight_interpolated(
                         mat.params(),
@@ -387,15 +393,15 @@ impl Prepared {
                     // and an orthographic view: the facade's constant-direction plan.
                     let wi = lv.light.try_normalize().unwrap_or(DVec3::Z);
                     let wo = lv.view.try_normalize().unwrap_or(DVec3::Z);
-                    if self.bf16.is_some() {
+                    if self.reduced.is_some() {
                         let rgb = net.relight_directional(mat.params(), to32(wi), to32(wo))?;
                         return Ok(rgb.data);
                     }
                     let far = Scene::new(Light::Directional(wi), View::Orthographic(wo));
                     Ok(relight(model, mat, &far)?.into_vec())
-                } else if self.bf16.is_some() {
+                } else if self.reduced.is_some() {
                     // What the facade's CPU path runs (protocol lights and viewers are above
-                    // the surface, unit intensity, no falloff), with the bf16 network.
+                    // the surface, unit intensity, no falloff), with the bf16 or int8 network.
                     Ok(net
                         .relight(mat.params(), to32(lv.light), to32(lv.view))?
                         .data)

@@ -41,7 +41,7 @@ fn stem(p: &Path) -> String {
         .to_string()
 }
 
-/// The report's rows: the three baselines, then per model the CPU fast path (f32, bf16),
+/// The report's rows: the three baselines, then per model the CPU fast path (f32, bf16, int8),
 /// the directional specialisation, interpolated ND_enc at several bounds, the CPU reference and the GPU (f32, f16, f32 directional)
 /// — the last two kinds on the subset.
 pub fn entries(o: &ReportOptions) -> Vec<Entry> {
@@ -82,6 +82,10 @@ pub fn entries(o: &ReportOptions) -> Vec<Entry> {
         v.push(full(
             neural(CpuFast, Bf16, General),
             &format!("{name} · CPU fast · bf16"),
+        ));
+        v.push(full(
+            neural(CpuFast, Int8, General),
+            &format!("{name} · CPU fast · int8"),
         ));
         v.push(full(
             neural(CpuFast, F32, Directional),
@@ -292,7 +296,7 @@ pub fn markdown(res: &RunResults, meta: &ReportMeta) -> String {
          shared with other processes on this machine, so times carry noise of tens of percent.\n\
          - **Specialisation** *directional*: the facade's `relight` with a directional light and \
          an orthographic view (ND_enc once per image, DESIGN §9; on the CPU, or on the GPU where \
-         the backend says so; bf16 rows call `RenderNet::relight_directional`) with the \
+         the backend says so; bf16 and int8 rows call `RenderNet::relight_directional`) with the \
          protocol's point light and viewer replaced by their directions from the material \
          centre; its error includes that approximation. *Interpolated ND_enc (≤ x°)*: the \
          protocol's point light and viewer, ND_enc evaluated only on a grid of pixels whose \

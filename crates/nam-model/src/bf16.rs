@@ -18,6 +18,8 @@ pub fn bf16_supported() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512bw")
+            && std::arch::is_x86_feature_detected!("avx512vl")
             && std::arch::is_x86_feature_detected!("avx512bf16")
     }
     #[cfg(not(target_arch = "x86_64"))]
@@ -57,7 +59,8 @@ pub(crate) struct Bf16Dense {
 }
 
 impl Bf16Dense {
-    /// From W `[out, inp]` row-major; AMX tiles where the CPU has them.
+    /// From W `[out, inp]` row-major (a LeakyReLU `slope` lies in [0, 1]); AMX tiles where the
+    /// CPU has them.
     pub fn new(w: &[f32], out: usize, inp: usize, slope: Option<f32>) -> Self {
         Self::with_kernel(w, out, inp, slope, amx::available())
     }
@@ -65,6 +68,11 @@ impl Bf16Dense {
     /// As [`Self::new`], with the kernel chosen by the caller (`amx` only where
     /// [`amx::available`]).
     fn with_kernel(w: &[f32], out: usize, inp: usize, slope: Option<f32>, amx: bool) -> Self {
+        // The kernel computes LeakyReLU as max(v, slope·v).
+        assert!(
+            slope.is_none_or(|s| (0.0..=1.0).contains(&s)),
+            "LeakyReLU slope {slope:?}"
+        );
         // AMX reads whole tiles: k padded to 16 pairs, columns to 32 (= NR).
         let kp = inp.div_ceil(2).div_ceil(amx::K_PAIRS) * amx::K_PAIRS;
         let out_pad = out.div_ceil(NR.max(amx::N_BLOCK)) * NR.max(amx::N_BLOCK);
@@ -116,13 +124,16 @@ impl Bf16Dense {
         for r in 0..m {
             let row = &x[r * ldx..r * ldx + self.inp];
             let dst = &mut pairs[r * stride..r * stride + kp];
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the bf16 path exists only where `bf16_supported()` (AVX-512 BF16/BW/VL);
+            // `dst` holds ⌈inp/2⌉ pairs.
+            unsafe {
+                pack_row_avx512(row, dst);
+            }
+            #[cfg(not(target_arch = "x86_64"))]
             for (p, d) in dst.iter_mut().enumerate() {
                 let lo = to_bf16(row[2 * p]);
-                let hi = if 2 * p + 1 < self.inp {
-                    to_bf16(row[2 * p + 1])
-                } else {
-                    0
-                };
+                let hi = row.get(2 * p + 1).map_or(0, |&v| to_bf16(v));
                 *d = lo | (hi << 16);
             }
         }
@@ -162,7 +173,6 @@ impl Bf16Dense {
     #[allow(clippy::needless_range_loop)]
     fn kernel(&self, m: usize, m_pad: usize, kp: usize, a: &[u32], y: &mut [f32], ldy: usize) {
         use std::arch::x86_64::*;
-        let mut tile = [[0.0f32; NR]; MR];
         for j0 in (0..self.out_pad).step_by(NR) {
             for i0 in (0..m_pad).step_by(MR) {
                 let mut acc = [[_mm512_setzero_ps(); 2]; MR];
@@ -188,24 +198,48 @@ impl Bf16Dense {
                         acc[r][1] = _mm512_dpbf16_ps(acc[r][1], av, b1);
                     }
                 }
-                for r in 0..MR {
-                    // SAFETY: each `tile[r]` holds NR = 32 f32 = two vectors.
-                    unsafe {
-                        _mm512_storeu_ps(tile[r].as_mut_ptr(), acc[r][0]);
-                        _mm512_storeu_ps(tile[r].as_mut_ptr().add(16), acc[r][1]);
-                    }
-                }
                 let cols = (self.out - j0.min(self.out)).min(NR);
+                let slope = _mm512_set1_ps(self.slope.unwrap_or(1.0));
                 for r in 0..MR.min(m.saturating_sub(i0)) {
-                    let dst = &mut y[(i0 + r) * ldy + j0..(i0 + r) * ldy + j0 + cols];
-                    for (d, &v) in dst.iter_mut().zip(&tile[r][..cols]) {
-                        *d = match self.slope {
-                            Some(s) if v < 0.0 => v * s,
-                            _ => v,
-                        };
+                    for (h, &v) in acc[r].iter().enumerate() {
+                        let mask = ((1u32 << cols.saturating_sub(16 * h).min(16)) - 1) as __mmask16;
+                        if mask == 0 {
+                            continue;
+                        }
+                        // LeakyReLU with slope in [0, 1]: max(v, s·v) (slope 1: identity).
+                        let v = _mm512_max_ps(v, _mm512_mul_ps(v, slope));
+                        // SAFETY: masked to the `cols` real columns of row i0 + r.
+                        unsafe {
+                            _mm512_mask_storeu_ps(
+                                y.as_mut_ptr().add((i0 + r) * ldy + j0 + 16 * h),
+                                mask,
+                                v,
+                            );
+                        }
                     }
                 }
             }
+        }
+    }
+}
+
+/// One activation row as bf16 pairs (`dst[p] = bf16(x[2p]) | bf16(x[2p+1]) << 16`, the odd
+/// tail padded with 0): in memory the row's bf16 values in order, sixteen per conversion
+/// (`vcvtneps2bf16`, round to nearest even as [`to_bf16`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+fn pack_row_avx512(row: &[f32], dst: &mut [u32]) {
+    use std::arch::x86_64::*;
+    let n = row.len();
+    let out = dst.as_mut_ptr().cast::<i16>();
+    for i in (0..n).step_by(16) {
+        let mask = ((1u32 << (n - i).min(16)) - 1) as __mmask16;
+        // SAFETY: loads and stores are masked to the row's `n` values; `dst` holds ⌈n/2⌉ u32
+        // = at least n bf16, and its padding half stays 0.
+        unsafe {
+            let v = _mm512_maskz_loadu_ps(mask, row.as_ptr().add(i));
+            let b: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(v));
+            _mm256_mask_storeu_epi16(out.add(i), mask, b);
         }
     }
 }
@@ -229,6 +263,29 @@ mod tests {
                 ((s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
             })
             .collect()
+    }
+
+    #[test]
+    fn vector_packing_rounds_as_the_scalar_conversion() {
+        if !bf16_supported() {
+            eprintln!("skipped: this CPU has no AVX-512 BF16");
+            return;
+        }
+        // Odd and even lengths, below and above one vector; ties and large/small magnitudes.
+        for n in [1, 15, 16, 17, 297, 594] {
+            let mut row = values(n, n as u64);
+            row.iter_mut()
+                .enumerate()
+                .for_each(|(i, v)| *v *= 10f32.powi(i as i32 % 9 - 4));
+            row[0] = f32::from_bits(0x3F80_8000); // halfway between two bf16: ties to even
+            let mut got = vec![0u32; n.div_ceil(2)];
+            // SAFETY: bf16_supported() checked above.
+            unsafe { pack_row_avx512(&row, &mut got) };
+            let want: Vec<u32> = (0..n.div_ceil(2))
+                .map(|p| to_bf16(row[2 * p]) | row.get(2 * p + 1).map_or(0, |&v| to_bf16(v)) << 16)
+                .collect();
+            assert_eq!(got, want, "n = {n}");
+        }
     }
 
     #[test]

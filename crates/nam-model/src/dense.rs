@@ -1,8 +1,9 @@
 //! Dense layers of `M_render` as the tile chain runs them: f32 ([`Dense`], `y = x·Wᵀ` on the
-//! transposed weights) or bf16 ([`Bf16Dense`]), each with its optional LeakyReLU, and
-//! [`chain`], which runs a stack of them on one tile.
+//! transposed weights) or reduced precision ([`Reduced`]: bf16 or int8 products), each with its
+//! optional LeakyReLU, and [`chain`], which runs a stack of them on one tile.
 
 use crate::bf16::Bf16Dense;
+use crate::int8::Int8Dense;
 use crate::sgemm::{Mat, sgemm};
 
 /// One dense layer `y = x · Wᵀ` stored transposed (`wt[i·out + o] = W[o, i]`),
@@ -53,11 +54,20 @@ impl Dense {
     }
 }
 
-/// A layer the tile chain can run: f32 ([`Dense`]) or bf16 ([`Bf16Dense`]).
+/// A layer the tile chain can run: f32 ([`Dense`]) or [`Reduced`].
 pub(crate) trait Layer {
     fn width(&self) -> usize;
-    /// `y[n×out] (ld ldy) = act(x[n×inp] (ld ldx) · Wᵀ)`, single-threaded.
-    fn run(&self, n: usize, x: &[f32], ldx: usize, y: &mut [f32], ldy: usize, pairs: &mut Vec<u32>);
+    /// `y[n×out] (ld ldy) = act(x[n×inp] (ld ldx) · Wᵀ)`, single-threaded; `packed` is scratch
+    /// for the reduced-precision operands.
+    fn run(
+        &self,
+        n: usize,
+        x: &[f32],
+        ldx: usize,
+        y: &mut [f32],
+        ldy: usize,
+        packed: &mut Vec<u32>,
+    );
 }
 
 impl Layer for Dense {
@@ -81,9 +91,20 @@ impl Layer for Dense {
     }
 }
 
-impl Layer for Bf16Dense {
+/// A reduced-precision layer: bf16 ([`Bf16Dense`]) or int8 ([`Int8Dense`]) products, f32
+/// accumulation and activation.
+#[derive(Debug, Clone)]
+pub(crate) enum Reduced {
+    Bf16(Bf16Dense),
+    Int8(Int8Dense),
+}
+
+impl Layer for Reduced {
     fn width(&self) -> usize {
-        self.out()
+        match self {
+            Self::Bf16(l) => l.out(),
+            Self::Int8(l) => l.out(),
+        }
     }
 
     fn run(
@@ -93,9 +114,12 @@ impl Layer for Bf16Dense {
         ldx: usize,
         y: &mut [f32],
         ldy: usize,
-        pairs: &mut Vec<u32>,
+        packed: &mut Vec<u32>,
     ) {
-        self.forward(n, x, ldx, y, ldy, pairs);
+        match self {
+            Self::Bf16(l) => l.forward(n, x, ldx, y, ldy, packed),
+            Self::Int8(l) => l.forward(n, x, ldx, y, ldy, packed),
+        }
     }
 }
 
@@ -112,7 +136,7 @@ pub(crate) fn chain<L: Layer>(
     b: &mut [f32],
     last: &mut [f32],
     ldlast: usize,
-    pairs: &mut Vec<u32>,
+    packed: &mut Vec<u32>,
 ) {
     let Some((tail, body)) = layers.split_last() else {
         for r in 0..n {
@@ -129,7 +153,7 @@ pub(crate) fn chain<L: Layer>(
             Some(true) => (&*a, &mut *b),
             Some(false) => (&*b, &mut *a),
         };
-        l.run(n, src, ld, dst, l.width(), pairs);
+        l.run(n, src, ld, dst, l.width(), packed);
         ld = l.width();
         in_a = Some(in_a != Some(true));
     }
@@ -138,5 +162,5 @@ pub(crate) fn chain<L: Layer>(
         Some(true) => a,
         Some(false) => b,
     };
-    tail.run(n, src, ld, last, ldlast, pairs);
+    tail.run(n, src, ld, last, ldlast, packed);
 }

@@ -6,8 +6,9 @@
 //!   images ([`RenderNet::relight`]) and the separate pieces
 //!   ([`RenderNet::encode`], [`RenderNet::nd_enc`], [`RenderNet::render_from_features`]).
 //!   Also [`RenderNet::relight_directional`] (same ωi, ωo everywhere: ND_enc
-//!   runs once, DESIGN §9) and [`RenderNet::with_bf16`] (opt-in bf16 products,
-//!   f32 sums, AVX-512 BF16; check [`bf16_supported`]).
+//!   runs once, DESIGN §9), [`RenderNet::with_bf16`] (opt-in bf16 products,
+//!   f32 sums, AVX-512 BF16 or AMX; check [`bf16_supported`]) and [`RenderNet::with_int8`]
+//!   (opt-in int8 products, i32 sums, AVX-512 VNNI; check [`int8_supported`]).
 //! * [`PreparedMaterial`] — [`RenderNet::prepare`] computes the params' part
 //!   `W_p·p` of the first render layer once per material; then
 //!   [`RenderNet::relight_prepared`] relights any [`Roi`] for point or distant
@@ -33,6 +34,7 @@ mod dense;
 pub mod encoding;
 mod error;
 pub mod input;
+mod int8;
 mod maps;
 mod param_file;
 mod prepared;
@@ -43,11 +45,12 @@ mod unet;
 
 pub use bf16::{bf16_kernel, bf16_supported};
 pub use error::{ModelError, Result};
+pub use int8::int8_supported;
 pub use maps::{ParamMap, Rgb};
 pub use nam_ggx::geometry;
 pub use nam_weights::radiance_from_log;
 pub use prepared::{PreparedMaterial, Roi};
-pub use render::{DEFAULT_TILE, RenderNet, interpolation_step};
+pub use render::{DEFAULT_TILE, Precision, ProbeTime, RenderNet, interpolation_step};
 pub use unet::{MAX_SIDE, UNet};
 
 use nam_weights::Weights;

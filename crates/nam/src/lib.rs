@@ -50,7 +50,7 @@ pub use material::NeuralMaterial;
 pub use model::EMBEDDED_MODEL;
 pub use model::{BackendKind, COST_PROBE_SIDE, EstimateCost, NeuralModel};
 pub use nam_model::input::network_input;
-pub use nam_model::{Roi, Source};
+pub use nam_model::{Precision as CpuPrecision, ProbeTime, Roi, Source};
 pub use photo::{MAX_PHOTO_SIDE, Photo};
 pub use relight::{Scene, relight, relight_roi};
 pub use sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere};

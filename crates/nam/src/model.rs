@@ -3,7 +3,7 @@
 use crate::error::{NamError, Result};
 use crate::material::NeuralMaterial;
 use crate::photo::Photo;
-use nam_model::Model;
+use nam_model::{Model, Precision as CpuPrecision, ProbeTime};
 use nam_weights::{ModelConfig, Weights};
 use sha2::{Digest, Sha256};
 use std::path::Path;
@@ -154,12 +154,28 @@ impl NeuralModel {
         self.nd_interpolation
     }
 
-    /// Switches the CPU renderer to bf16 products with f32 accumulation (≈2× faster on AMD Zen 4
-    /// and, on AMX tiles, on Intel Xeon Sapphire Rapids and later; log-space differences of order
-    /// 1e-3). Errors, leaving the model unchanged, on CPUs without AVX-512 BF16.
-    pub fn enable_cpu_bf16(&mut self) -> Result<()> {
-        self.cpu.render = self.cpu.render.clone().with_bf16()?;
+    /// Switches the products of the CPU renderer (ND_enc and the render layers after the first;
+    /// sums stay f32, or exact i32 for int8) to `precision`: bf16 (≈2× faster where the CPU has
+    /// AVX-512 BF16 or AMX; log-space differences of order 1e-3), int8 (AVX-512 VNNI) or back to
+    /// f32. Errors, leaving the model unchanged, when the CPU lacks the instructions; the
+    /// report (`nam-cli report`) gives each precision's error.
+    pub fn set_cpu_precision(&mut self, precision: CpuPrecision) -> Result<()> {
+        self.cpu.render = self.cpu.render.clone().with_precision(precision)?;
         Ok(())
+    }
+
+    /// Switches the CPU renderer to the fastest precision this CPU runs, chosen by timing one
+    /// tile of the general path in each ([`RenderNet::fastest`](nam_model::RenderNet::fastest),
+    /// a few milliseconds); returns the probe times. f32 stays when it is the fastest.
+    pub fn use_fastest_cpu_precision(&mut self) -> Result<Vec<ProbeTime>> {
+        let (net, times) = self.cpu.render.clone().fastest()?;
+        self.cpu.render = net;
+        Ok(times)
+    }
+
+    /// The products the CPU renderer computes in ([`Self::set_cpu_precision`]).
+    pub fn cpu_precision(&self) -> CpuPrecision {
+        self.cpu.render.precision()
     }
 
     /// Runs estimation, image relighting and large [`NeuralBrdf::eval`](crate::NeuralBrdf::eval)

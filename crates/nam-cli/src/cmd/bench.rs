@@ -92,9 +92,14 @@ pub fn run(args: &Args) -> Result<()> {
         .map(|q| unit_direction([0.2, (q % 53) as f32 / 26.0 - 1.0, 1.0]))
         .collect();
     let mut out = vec![0.0f32; QUERIES * 3];
-    // The opt-in bf16 products (`--precision bf16`) where the CPU has them.
+    // The opt-in bf16 and int8 products (`--precision bf16|int8`) where the CPU has them.
     let bf16 = if nam_model::bf16_supported() {
         Some(net.clone().with_bf16()?)
+    } else {
+        None
+    };
+    let int8 = if nam_model::int8_supported() {
+        Some(net.clone().with_int8()?)
     } else {
         None
     };
@@ -233,6 +238,20 @@ pub fn run(args: &Args) -> Result<()> {
                 fl(m(false, false), n),
                 Box::new(|| {
                     bf.relight(&map, light, view)?;
+                    Ok(())
+                }),
+            ),
+        );
+    }
+    if let Some(q) = &int8 {
+        cases.insert(
+            3 + usize::from(bf16.is_some()),
+            (
+                format!("general point relight {s}², int8 (AVX-512 VNNI)"),
+                n,
+                fl(m(false, false), n),
+                Box::new(|| {
+                    q.relight(&map, light, view)?;
                     Ok(())
                 }),
             ),

@@ -22,15 +22,18 @@ use nam_weights::{
 
 use crate::Source;
 use crate::bf16::{Bf16Dense, bf16_supported};
-use crate::dense::Dense;
+use crate::dense::{Dense, Reduced};
 use crate::encoding::{direction_triple, encode_into, encoded_len};
 use crate::error::{ModelError, Result, check_finite, check_len};
 use crate::geometry::{Directions, pixel_position};
+use crate::int8::{Int8Dense, int8_supported};
 use crate::maps::{ParamMap, Rgb};
 
+mod choose;
 mod interpolated;
 mod tile;
 
+pub use choose::ProbeTime;
 pub use interpolated::interpolation_step;
 
 pub(crate) use tile::{Base, Dirs, NoDirs};
@@ -59,9 +62,9 @@ pub struct RenderNet {
     /// `render[0]` is the first render layer `[params, nd] → hidden`.
     pub(crate) render: Vec<Dense>,
     pub(crate) tile: usize,
-    /// bf16 twins of `nd` and of `render[1..]` when [`RenderNet::with_bf16`]
-    /// was called (the first render layer always stays f32).
-    bf16: Option<(Vec<Bf16Dense>, Vec<Bf16Dense>)>,
+    /// Reduced-precision twins of `nd` and of `render[1..]` after [`RenderNet::with_bf16`] or
+    /// [`RenderNet::with_int8`] (the first render layer always stays f32).
+    reduced: Option<ReducedLayers>,
     /// Hash of the first render layer: ties a prepared material to this net.
     pub(crate) first_id: u64,
     /// The architecture: the multiply-add counts derive from it.
@@ -104,7 +107,7 @@ impl RenderNet {
             nd,
             render,
             tile: DEFAULT_TILE,
-            bf16: None,
+            reduced: None,
             first_id,
             config: cfg.clone(),
             folded: fold,
@@ -121,13 +124,38 @@ impl RenderNet {
     /// bf16 products with f32 accumulation (AVX-512 BF16 or AMX tiles; ~2× faster, log-space
     /// differences of order 1e-3) for ND_enc and the render layers after the
     /// first (which stays f32). Errors when the CPU lacks the instructions.
-    pub fn with_bf16(mut self) -> Result<Self> {
+    pub fn with_bf16(self) -> Result<Self> {
         if !bf16_supported() {
             return Err(ModelError::Unsupported(
                 "bf16 needs AVX-512 BF16 (avx512bf16)",
             ));
         }
-        let twin = |layers: &[Dense]| -> Vec<Bf16Dense> {
+        Ok(self.with_reduced(Precision::Bf16, |w, l| {
+            Reduced::Bf16(Bf16Dense::new(w, l.out, l.inp, l.slope))
+        }))
+    }
+
+    /// Like [`Self::with_bf16`] with int8 products (AVX-512 VNNI `vpdpbusd`, i32 sums): weights
+    /// quantised per output channel, activations per row at run time (see `int8.rs`). Errors
+    /// when the CPU lacks the instructions.
+    pub fn with_int8(self) -> Result<Self> {
+        if !int8_supported() {
+            return Err(ModelError::Unsupported(
+                "int8 needs AVX-512 VNNI (avx512vnni)",
+            ));
+        }
+        Ok(self.with_reduced(Precision::Int8, |w, l| {
+            Reduced::Int8(Int8Dense::new(w, l.out, l.inp, l.slope))
+        }))
+    }
+
+    /// Twins of `nd` and `render[1..]` built by `twin(W [out, inp], layer)`.
+    fn with_reduced(
+        mut self,
+        precision: Precision,
+        twin: impl Fn(&[f32], &Dense) -> Reduced,
+    ) -> Self {
+        let twins = |layers: &[Dense]| -> Vec<Reduced> {
             layers
                 .iter()
                 .map(|l| {
@@ -138,17 +166,28 @@ impl RenderNet {
                             w[o * l.inp + i] = l.wt[i * l.out + o];
                         }
                     }
-                    Bf16Dense::new(&w, l.out, l.inp, l.slope)
+                    twin(&w, l)
                 })
                 .collect()
         };
-        self.bf16 = Some((twin(&self.nd), twin(&self.render[1..])));
-        Ok(self)
+        self.reduced = Some(ReducedLayers {
+            precision,
+            nd: twins(&self.nd),
+            tail: twins(&self.render[1..]),
+        });
+        self
+    }
+
+    /// The products the fused paths compute in.
+    pub fn precision(&self) -> Precision {
+        self.reduced
+            .as_ref()
+            .map_or(Precision::F32, |r| r.precision)
     }
 
     /// Whether the bf16 path is active.
     pub fn is_bf16(&self) -> bool {
-        self.bf16.is_some()
+        self.precision() == Precision::Bf16
     }
 
     /// Parameter channels per pixel (64).
@@ -361,6 +400,38 @@ impl RenderNet {
             data,
         })
     }
+}
+
+/// The products of ND_enc and of the render layers after the first (sums are f32 or exact i32).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Precision {
+    /// f32 products (the default).
+    F32,
+    /// bf16 products, f32 sums ([`RenderNet::with_bf16`]).
+    Bf16,
+    /// int8 products, i32 sums, f32 scales ([`RenderNet::with_int8`]).
+    Int8,
+}
+
+impl Precision {
+    /// Short name (`f32`, `bf16`, `int8`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::F32 => "f32",
+            Self::Bf16 => "bf16",
+            Self::Int8 => "int8",
+        }
+    }
+}
+
+/// The reduced-precision twins of a [`RenderNet`]'s layers.
+#[derive(Debug, Clone)]
+pub(crate) struct ReducedLayers {
+    precision: Precision,
+    /// ND_enc.
+    pub(crate) nd: Vec<Reduced>,
+    /// `render[1..]`.
+    pub(crate) tail: Vec<Reduced>,
 }
 
 /// The 9 values of a `[ωi, ωo, ωh]` row.

@@ -48,7 +48,7 @@ pub(crate) struct Scratch {
     /// ND_enc output (`n × nd_len`).
     pub(super) nd: Vec<f32>,
     log: Vec<f32>,
-    pairs: Vec<u32>,
+    packed: Vec<u32>,
 }
 
 impl RenderNet {
@@ -70,7 +70,7 @@ impl RenderNet {
             h: vec![0.0; n * self.hidden_len()],
             nd: vec![0.0; n * self.nd_len()],
             log: vec![0.0; n * 3],
-            pairs: Vec::new(),
+            packed: Vec::new(),
         }
     }
 
@@ -108,13 +108,13 @@ impl RenderNet {
                 &mut s.b,
                 dst,
                 d,
-                &mut s.pairs,
+                &mut s.packed,
             );
         });
         Ok(())
     }
 
-    /// ND_enc features of `n` direction triples into `s.nd` (bf16 when active).
+    /// ND_enc features of `n` direction triples into `s.nd` (reduced precision when active).
     pub(super) fn features_into(&self, s: &mut Scratch, n: usize, dir: impl Fn(usize) -> [f32; 9]) {
         let e = self.encoded_len();
         let d = self.nd_len();
@@ -126,12 +126,12 @@ impl RenderNet {
             a,
             b,
             nd,
-            pairs,
+            packed,
             ..
         } = s;
-        match &self.bf16 {
-            Some((nd16, _)) => chain(nd16, n, enc, e, a, b, nd, d, pairs),
-            None => chain(&self.nd, n, enc, e, a, b, nd, d, pairs),
+        match &self.reduced {
+            Some(r) => chain(&r.nd, n, enc, e, a, b, nd, d, packed),
+            None => chain(&self.nd, n, enc, e, a, b, nd, d, packed),
         }
     }
 
@@ -192,7 +192,7 @@ impl RenderNet {
             h,
             nd,
             log,
-            pairs,
+            packed,
             ..
         } = s;
         let h = &mut h[..n * h1];
@@ -247,9 +247,9 @@ impl RenderNet {
             }
         }
         first.activate(n, h, h1);
-        match &self.bf16 {
-            Some((_, tail16)) => chain(tail16, n, h, h1, a, b, log, 3, pairs),
-            None => chain(&self.render[1..], n, h, h1, a, b, log, 3, pairs),
+        match &self.reduced {
+            Some(r) => chain(&r.tail, n, h, h1, a, b, log, 3, packed),
+            None => chain(&self.render[1..], n, h, h1, a, b, log, 3, packed),
         }
     }
 
