@@ -372,7 +372,8 @@ mod tests {
         };
         let e = entries(&o);
         let interp = INTERPOLATION_BOUNDS_MILLIDEG.len();
-        assert_eq!(e.len(), 3 + 2 * (7 + interp));
+        assert_eq!(e.len(), 3 + 2 * (8 + interp));
+        assert!(e.iter().any(|x| x.label == "b · CPU fast · int8"));
         assert!(e.iter().any(|x| x.label == "a · CPU fast · f32 · ≤ 2°"
             && x.spec.specialisation_name() == "interpolated ND_enc (≤ 2° per node)"));
         let reference = e
@@ -383,7 +384,7 @@ mod tests {
         assert_eq!(reference.pairs.hemisphere, 128);
         assert_eq!(reference.materials, 2);
         let no_gpu = entries(&ReportOptions { gpu: false, ..o });
-        assert_eq!(no_gpu.len(), 3 + 2 * (4 + interp));
+        assert_eq!(no_gpu.len(), 3 + 2 * (5 + interp));
     }
 
     #[test]
