@@ -8,6 +8,8 @@
 #![allow(unsafe_code)]
 
 use crate::amx;
+#[cfg(target_arch = "x86_64")]
+use crate::simd;
 
 /// Rows of the microkernel (activations) and columns (two 16-lane registers).
 const MR: usize = 8;
@@ -202,19 +204,14 @@ impl Bf16Dense {
                 let slope = _mm512_set1_ps(self.slope.unwrap_or(1.0));
                 for r in 0..MR.min(m.saturating_sub(i0)) {
                     for (h, &v) in acc[r].iter().enumerate() {
-                        let mask = ((1u32 << cols.saturating_sub(16 * h).min(16)) - 1) as __mmask16;
+                        let mask = simd::lanes(cols.saturating_sub(16 * h));
                         if mask == 0 {
                             continue;
                         }
-                        // LeakyReLU with slope in [0, 1]: max(v, s·v) (slope 1: identity).
-                        let v = _mm512_max_ps(v, _mm512_mul_ps(v, slope));
                         // SAFETY: masked to the `cols` real columns of row i0 + r.
                         unsafe {
-                            _mm512_mask_storeu_ps(
-                                y.as_mut_ptr().add((i0 + r) * ldy + j0 + 16 * h),
-                                mask,
-                                v,
-                            );
+                            let dst = y.as_mut_ptr().add((i0 + r) * ldy + j0 + 16 * h);
+                            simd::store_leaky(dst, mask, v, slope);
                         }
                     }
                 }
@@ -233,7 +230,7 @@ fn pack_row_avx512(row: &[f32], dst: &mut [u32]) {
     let n = row.len();
     let out = dst.as_mut_ptr().cast::<i16>();
     for i in (0..n).step_by(16) {
-        let mask = ((1u32 << (n - i).min(16)) - 1) as __mmask16;
+        let mask = simd::lanes(n - i);
         // SAFETY: loads and stores are masked to the row's `n` values; `dst` holds ⌈n/2⌉ u32
         // = at least n bf16, and its padding half stays 0.
         unsafe {

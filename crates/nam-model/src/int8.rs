@@ -12,6 +12,9 @@
 //! rounding of both operands to 8 bits (see the tests and the report's int8 row).
 #![allow(unsafe_code)]
 
+#[cfg(target_arch = "x86_64")]
+use crate::simd;
+
 /// Rows of the microkernel (activations) and columns (two 16-lane registers).
 const MR: usize = 8;
 const NR: usize = 32;
@@ -224,7 +227,7 @@ impl Int8Dense {
                     let t = _mm512_set1_ps(f32::from_bits(scales[i0 + r]));
                     for (h, acc) in acc[r].iter().enumerate() {
                         let c0 = j0 + 16 * h;
-                        let mask = ((1u32 << cols.saturating_sub(16 * h).min(16)) - 1) as __mmask16;
+                        let mask = simd::lanes(cols.saturating_sub(16 * h));
                         if mask == 0 {
                             continue;
                         }
@@ -237,9 +240,8 @@ impl Int8Dense {
                                 _mm512_cvtepi32_ps(_mm512_sub_epi32(*acc, off)),
                                 _mm512_mul_ps(t, s),
                             );
-                            // LeakyReLU with slope in [0, 1]: max(v, s·v) (slope 1: identity).
-                            let v = _mm512_max_ps(v, _mm512_mul_ps(v, slope));
-                            _mm512_mask_storeu_ps(y.as_mut_ptr().add((i0 + r) * ldy + c0), mask, v);
+                            let dst = y.as_mut_ptr().add((i0 + r) * ldy + c0);
+                            simd::store_leaky(dst, mask, v, slope);
                         }
                     }
                 }
@@ -276,10 +278,7 @@ fn quantise_row(row: &[f32], dst: &mut [u32]) -> f32 {
 fn quantise_row_avx512(row: &[f32], dst: &mut [u32]) -> f32 {
     use std::arch::x86_64::*;
     let n = row.len();
-    let lanes = |i: usize, end: usize| -> __mmask16 {
-        let left = end.saturating_sub(i).min(16);
-        ((1u32 << left) - 1) as __mmask16
-    };
+    let lanes = |i: usize, end: usize| simd::lanes(end.saturating_sub(i));
     let mut vmax = _mm512_setzero_ps();
     for i in (0..n).step_by(16) {
         // SAFETY: the mask covers only lanes below `n`.

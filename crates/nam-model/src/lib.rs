@@ -41,6 +41,7 @@ mod prepared;
 pub mod reference;
 mod render;
 mod sgemm;
+mod simd;
 mod unet;
 
 pub use bf16::{bf16_kernel, bf16_supported};
