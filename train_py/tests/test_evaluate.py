@@ -43,6 +43,12 @@ def test_box_downsample_averages_linear_values_and_renormalises_normals():
     assert math.isclose(float(half["roughness"][0, 0, 0]), float(maps["roughness"][0, :2, :2].mean()), rel_tol=1e-6)
 
 
+#: Scores of the agreement fixture recomputed on another CPU: torch's f32 kernels sum in an
+#: order that depends on the machine (measured 8.3e-6 on an SSIM, AMD EPYC against the Intel
+#: Xeon that wrote the fixture); the Rust runner is held to 1e-5 on log-L1 by its own test.
+AGREEMENT_SCORE_TOL = 2e-5
+
+
 def test_the_agreement_fixture_is_what_the_generator_writes():
     """The committed golden is reproducible (pairs exactly, scores to float noise)."""
     stored = load_file(eval_agreement.OUT)
@@ -52,4 +58,4 @@ def test_the_agreement_fixture_is_what_the_generator_writes():
         if k.startswith("pairs."):
             assert torch.equal(stored[k], v), k
         else:
-            assert torch.allclose(stored[k], v, atol=1e-6), k
+            assert torch.allclose(stored[k], v, atol=AGREEMENT_SCORE_TOL, rtol=0), k
