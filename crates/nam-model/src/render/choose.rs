@@ -52,19 +52,17 @@ impl RenderNet {
     /// the general path (a few ms in all), and every probe time. The result computes in that
     /// precision; see the report for each one's error.
     pub fn fastest(self) -> Result<(Self, Vec<ProbeTime>)> {
+        let mut best: Option<(f64, Self)> = None;
         let mut times = Vec::new();
         for precision in Self::supported_precisions() {
             let net = self.clone().with_precision(precision)?;
-            times.push(ProbeTime {
-                precision,
-                ms: net.probe_tile_ms(),
-            });
+            let ms = net.probe_tile_ms();
+            times.push(ProbeTime { precision, ms });
+            if best.as_ref().is_none_or(|(b, _)| ms < *b) {
+                best = Some((ms, net));
+            }
         }
-        let best = times
-            .iter()
-            .min_by(|a, b| a.ms.total_cmp(&b.ms))
-            .map_or(Precision::F32, |t| t.precision);
-        Ok((self.with_precision(best)?, times))
+        Ok((best.map_or(self, |(_, net)| net), times))
     }
 
     /// Best of [`PROBE_RUNS`] timings of one tile of random-looking params under a point light.
