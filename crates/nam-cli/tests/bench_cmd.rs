@@ -118,11 +118,13 @@ fn bench_rejects_bad_options_and_missing_models() {
 }
 
 /// Rows of the `--gpu` table, in order.
-const GPU_ROWS: [&str; 4] = [
+const GPU_ROWS: [&str; 6] = [
     "GPU general point relight 16²",
     "GPU directional + orthographic 16²",
     "CPU general point relight 16²",
     "CPU directional + orthographic 16²",
+    "GPU estimate (M_est) 16²",
+    "CPU estimate (M_est) 16²",
 ];
 
 #[test]
@@ -143,10 +145,11 @@ fn bench_gpu_times_both_plans_on_the_adapter_and_the_cpu() {
         .unwrap_or_else(|| panic!("no GPU table:\n{stdout}"));
     let rows = table_rows(gpu_table);
     assert_eq!(rows.len(), GPU_ROWS.len(), "{gpu_table}");
-    for (row, want) in rows.iter().zip(GPU_ROWS) {
+    for (k, (row, want)) in rows.iter().zip(GPU_ROWS).enumerate() {
         assert_eq!(row[0], want, "{row:?}");
         assert_eq!(row[1], "256", "{row:?}");
-        for col in [2, 3, 4] {
+        let cols: &[usize] = if k < 4 { &[2, 3, 4] } else { &[2, 3] };
+        for &col in cols {
             let v: f64 = row[col]
                 .parse()
                 .unwrap_or_else(|_| panic!("column {col} of {row:?}"));
@@ -161,4 +164,11 @@ fn bench_gpu_times_both_plans_on_the_adapter_and_the_cpu() {
         rows[0]
     );
     assert_eq!(rows[2][5], "—");
+    assert_eq!(rows[4][4], "—");
+    assert!(
+        rows[4][5].parse::<f64>().is_ok_and(|x| x > 0.0),
+        "{:?}",
+        rows[4]
+    );
+    assert_eq!(rows[5][5], "—");
 }

@@ -159,6 +159,53 @@ fn conv_ref(
     out
 }
 
+/// ConvTranspose2d (stride 2, weight `[cin, cout, k, k]`) + bias + optional ReLU, in the
+/// scatter form of the definition: every input tap adds to one output pixel.
+fn conv_t_ref(x: &[f32], wt: &[f32], b: &[f32], s: ConvShape, relu: bool) -> Vec<f32> {
+    let (cin, cout, h, w, k) = (
+        s.cin as usize,
+        s.cout as usize,
+        i64::from(s.h),
+        i64::from(s.w),
+        i64::from(s.k),
+    );
+    let (ho, wo) = (
+        (h - 1) * 2 + k - 2 * i64::from(s.pad),
+        (w - 1) * 2 + k - 2 * i64::from(s.pad),
+    );
+    let mut want = vec![0.0f64; cout * (ho * wo) as usize];
+    for ci in 0..cin {
+        for iy in 0..h {
+            for ix in 0..w {
+                for co in 0..cout {
+                    for ky in 0..k {
+                        for kx in 0..k {
+                            let oy = iy * 2 - i64::from(s.pad) + ky;
+                            let ox = ix * 2 - i64::from(s.pad) + kx;
+                            if (0..ho).contains(&oy) && (0..wo).contains(&ox) {
+                                want[co * (ho * wo) as usize + (oy * wo + ox) as usize] +=
+                                    f64::from(x[ci * (h * w) as usize + (iy * w + ix) as usize])
+                                        * f64::from(
+                                            wt[((ci * cout + co) * k as usize + ky as usize)
+                                                * k as usize
+                                                + kx as usize],
+                                        );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    want.iter()
+        .enumerate()
+        .map(|(j, v)| {
+            let y = v + f64::from(b[j / (ho * wo) as usize]);
+            (if relu { y.max(0.0) } else { y }) as f32
+        })
+        .collect()
+}
+
 #[test]
 fn smoke_kernel_round_trips_through_the_device() {
     let Some(ctx) = ctx() else { return };
@@ -293,49 +340,7 @@ fn conv_transpose_matches_cpu_reference_on_odd_sizes() {
             )
             .unwrap_or_else(|e| panic!("{e}"));
             let got = run(ctx, vec![d], &out, out.elems as usize);
-            // Scatter form of the definition: every input tap adds to one output pixel.
-            let (cin, cout, h, w, k, ho, wo) = (
-                cin as usize,
-                cout as usize,
-                h as i64,
-                w as i64,
-                k as i64,
-                ho as i64,
-                wo as i64,
-            );
-            let mut want = vec![0.0f64; cout * (ho * wo) as usize];
-            for ci in 0..cin {
-                for iy in 0..h {
-                    for ix in 0..w {
-                        for co in 0..cout {
-                            for ky in 0..k {
-                                for kx in 0..k {
-                                    let oy = iy * 2 - i64::from(pad) + ky;
-                                    let ox = ix * 2 - i64::from(pad) + kx;
-                                    if (0..ho).contains(&oy) && (0..wo).contains(&ox) {
-                                        want[co * (ho * wo) as usize + (oy * wo + ox) as usize] +=
-                                            f64::from(
-                                                x[ci * (h * w) as usize + (iy * w + ix) as usize],
-                                            ) * f64::from(
-                                                wt[((ci * cout + co) * k as usize + ky as usize)
-                                                    * k as usize
-                                                    + kx as usize],
-                                            );
-                                    }
-                                }
-                            }
-                        }
-                    }
-                }
-            }
-            let want: Vec<f32> = want
-                .iter()
-                .enumerate()
-                .map(|(j, v)| {
-                    let y = v + f64::from(b[j / (ho * wo) as usize]);
-                    (if relu { y.max(0.0) } else { y }) as f32
-                })
-                .collect();
+            let want = conv_t_ref(&x, &wt, &b, s, relu);
             assert_close(&got, &want, tol, &format!("conv_transpose case {i} {p:?}"));
         }
     }
@@ -804,4 +809,206 @@ fn texture_positional_encoding_matches_buffer_kernel_and_pads_with_zeros() {
             assert!(row[width..].iter().all(|&v| v == 0.0), "row {r} padding");
         }
     }
+}
+
+/// The texture convolutions (`tex_pack.wgsl` + `conv_tex.wgsl`) against the CPU loops, on
+/// sizes that leave partial pixel blocks, partial 16-channel blocks and partial texels, with
+/// the input packed from an offset view (and normalised on the way) and the output written at
+/// an offset; the packed texture's padding channels must be zero.
+#[test]
+fn texture_convolutions_match_cpu_reference_on_odd_sizes() {
+    let Some(ctx) = texture_ctx() else { return };
+    for (p, tol) in precisions(ctx) {
+        // (cin, h, w, cout, k, stride, pad, bias, norm, act)
+        let direct = [
+            (
+                3u32,
+                9u32,
+                11u32,
+                5u32,
+                3u32,
+                1u32,
+                1u32,
+                false,
+                false,
+                Act::None,
+            ),
+            (9, 13, 19, 21, 3, 2, 1, true, true, Act::Leaky(0.1)),
+            (4, 13, 10, 7, 7, 1, 3, false, false, Act::Leaky(0.01)),
+            (5, 7, 9, 33, 1, 2, 0, true, false, Act::None),
+            (12, 16, 8, 64, 7, 1, 3, false, true, Act::None),
+            (2, 5, 3, 9, 7, 2, 3, true, true, Act::Leaky(0.0)),
+        ];
+        for (i, &(cin, h, w, cout, k, stride, pad, use_bias, use_norm, act)) in
+            direct.iter().enumerate()
+        {
+            let s = ConvShape {
+                cin,
+                h,
+                w,
+                cout,
+                k,
+                stride,
+                pad,
+            };
+            let (ho, wo) = s.out_hw();
+            let x = q(&rand_vec((cin * h * w) as usize + 5, 80 + i as u64), p);
+            let wt = q(&rand_vec((cout * cin * k * k) as usize, 90 + i as u64), p);
+            let b = q(&rand_vec(cout as usize, 100 + i as u64), p);
+            let norm: Vec<f32> = rand_vec(2 * cin as usize, 110 + i as u64)
+                .iter()
+                .map(|v| v + 1.5)
+                .collect();
+            // The reference sees the normalised input as the texture stores it.
+            let xn: Vec<f32> = if use_norm {
+                let hw = (h * w) as usize;
+                let v: Vec<f32> = (0..cin as usize * hw)
+                    .map(|e| x[5 + e] * norm[2 * (e / hw)] + norm[2 * (e / hw) + 1])
+                    .collect();
+                q(&v, p)
+            } else {
+                x[5..].to_vec()
+            };
+            let got = run_conv_tex(
+                ctx,
+                p,
+                ops::ConvKind::Direct,
+                &x,
+                use_norm.then_some(&norm[..]),
+                &wt,
+                use_bias.then_some(&b[..]),
+                s,
+                act,
+            );
+            let want = conv_ref(&xn, &wt, use_bias.then_some(&b[..]), None, s, act);
+            assert_eq!(got.len(), 3 + (cout * ho * wo) as usize);
+            assert!(
+                got[..3].iter().all(|&v| v == 0.0),
+                "conv_tex case {i}: wrote before its output"
+            );
+            assert_close(&got[3..], &want, tol, &format!("conv_tex case {i} {p:?}"));
+        }
+        // (cin, h, w, cout, k, pad, relu)
+        let transposed = [
+            (3u32, 5u32, 7u32, 4u32, 4u32, 1u32, true),
+            (5, 3, 5, 3, 2, 0, false),
+            (17, 4, 6, 20, 4, 1, false),
+            (8, 9, 2, 16, 2, 0, true),
+        ];
+        for (i, &(cin, h, w, cout, k, pad, relu)) in transposed.iter().enumerate() {
+            let s = ConvShape {
+                cin,
+                h,
+                w,
+                cout,
+                k,
+                stride: 2,
+                pad,
+            };
+            let x = q(&rand_vec((cin * h * w) as usize + 5, 120 + i as u64), p);
+            let wt = q(&rand_vec((cin * cout * k * k) as usize, 130 + i as u64), p);
+            let b = q(&rand_vec(cout as usize, 140 + i as u64), p);
+            let act = if relu { Act::Leaky(0.0) } else { Act::None };
+            let got = run_conv_tex(
+                ctx,
+                p,
+                ops::ConvKind::Transposed,
+                &x,
+                None,
+                &wt,
+                Some(&b),
+                s,
+                act,
+            );
+            let want = conv_t_ref(&x[5..], &wt, &b, s, relu);
+            assert_close(&got[3..], &want, tol, &format!("conv_t_tex case {i} {p:?}"));
+        }
+    }
+}
+
+/// Packs `x[5..]` (normalised by `norm` when given) into a texture one band taller than
+/// needed, checks its padding channels, runs [`ops::conv_tex`] into a buffer at element 3 and
+/// returns the whole buffer.
+#[allow(clippy::too_many_arguments)]
+fn run_conv_tex(
+    ctx: &GpuContext,
+    p: Precision,
+    kind: ops::ConvKind,
+    x: &[f32],
+    norm: Option<&[f32]>,
+    wt: &[f32],
+    bias: Option<&[f32]>,
+    s: ConvShape,
+    act: Act,
+) -> Vec<f32> {
+    let rows = ops::channel_block_rows(s.cin, s.h);
+    let xt = ctx
+        .texture("x", s.w + 1, rows + s.h, p)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let xb = up(ctx, x, p);
+    let nb = norm.map(|n| up(ctx, n, Precision::F32));
+    let pack = ops::pack_tex(
+        ctx,
+        View {
+            buf: &xb.buffer,
+            base: 5,
+        },
+        (s.cin, s.h, s.w),
+        nb.as_ref().map(|n| &n.buffer),
+        &xt,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    ctx.run(&[pack]).unwrap_or_else(|e| panic!("{e}"));
+    let texels = ctx
+        .read_texture(&xt, rows)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let row_len = 4 * (s.w + 1) as usize;
+    for (r, row) in texels.chunks_exact(row_len).enumerate() {
+        for (xx, t) in row[..4 * s.w as usize].chunks_exact(4).enumerate() {
+            for (j, &v) in t.iter().enumerate() {
+                let c = 4 * (r / s.h as usize) + j;
+                if c >= s.cin as usize {
+                    assert_eq!(v, 0.0, "pack: padding channel {c} at x {xx}, row {r}");
+                } else if norm.is_none() {
+                    let e = 5 + c * (s.h * s.w) as usize + (r % s.h as usize) * s.w as usize + xx;
+                    assert_eq!(v, x[e], "pack: channel {c} at x {xx}, row {r}");
+                }
+            }
+        }
+    }
+    let (cout, cin) = (s.cout as usize, s.cin as usize);
+    let (m, cols) = crate::weights::conv_weight_matrix(
+        wt,
+        cout,
+        cin,
+        s.k as usize,
+        kind == ops::ConvKind::Transposed,
+    );
+    let wtex = ctx
+        .upload_matrix("w", &m, s.cout, cols as u32, p)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let bb = bias.map(|b| up(ctx, b, p));
+    let plane = match kind {
+        ops::ConvKind::Direct => {
+            let (ho, wo) = s.out_hw();
+            ho * wo
+        }
+        ops::ConvKind::Transposed => 4 * s.h * s.w,
+    };
+    let out = zeros(ctx, 3 + (s.cout * plane) as usize, p);
+    let d = ops::conv_tex(
+        ctx,
+        kind,
+        &xt,
+        &wtex,
+        bb.as_ref().map(|b| &b.buffer),
+        View {
+            buf: &out.buffer,
+            base: 3,
+        },
+        s,
+        act,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    run(ctx, vec![d], &out, out.elems as usize)
 }

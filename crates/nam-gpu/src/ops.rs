@@ -7,8 +7,8 @@ use crate::context::{
 };
 use crate::error::{GpuError, Result};
 use crate::params::{
-    ConvParams, ConvTParams, EwParams, GateParams, MatmulParams, NormParams, PeParams,
-    TexMatmulParams,
+    ConvParams, ConvTParams, ConvTexParams, EwParams, GateParams, MatmulParams, NormParams,
+    PackParams, PeParams, TexMatmulParams,
 };
 use crate::shaders::{Family, Precision};
 use bytemuck::Pod;
@@ -195,6 +195,160 @@ pub(crate) fn conv_transpose2d(
             Res::Buf(dst.buf),
         ],
         groups,
+    )
+}
+
+/// Rows of the channel-block texture of a `[channels, h, w]` tensor (`shaders/tex_pack.wgsl`):
+/// one `h`-row band per block of 4 channels.
+pub(crate) fn channel_block_rows(channels: u32, h: u32) -> u32 {
+    channels.div_ceil(4) * h
+}
+
+/// Packs `src` (`[channels, h, w]`) into `dst` as `shaders/tex_pack.wgsl` lays it out,
+/// applying `norm` (f32 `[channels, 2]`: scale, shift) on the way when given.
+pub(crate) fn pack_tex(
+    ctx: &GpuContext,
+    src: View<'_>,
+    (channels, h, w): (u32, u32, u32),
+    norm: Option<&wgpu::Buffer>,
+    dst: &DeviceTexture,
+) -> Result<Dispatch> {
+    let rows = channel_block_rows(channels, h);
+    if channels == 0 || w > dst.texels || rows > dst.rows {
+        return Err(GpuError::Size {
+            what: "pack_tex",
+            reason: format!(
+                "[{channels}, {h}, {w}] needs {w}x{rows} texels, the texture has {}x{}",
+                dst.texels, dst.rows
+            ),
+        });
+    }
+    let params = PackParams {
+        channels,
+        h,
+        w,
+        in_base: src.base,
+        use_norm: u32::from(norm.is_some()),
+        _pad0: 0,
+        _pad1: 0,
+        _pad2: 0,
+    };
+    launch(
+        ctx,
+        PipelineKey {
+            family: Family::TexPack,
+            entry: "pack_tex",
+            precision: dst.precision,
+            constants: vec![],
+        },
+        &params,
+        &[
+            Res::Buf(src.buf),
+            Res::Buf(norm.unwrap_or(ctx.dummy())),
+            Res::Tex(&dst.view),
+        ],
+        [groups_1d(w, 8)?, groups_1d(rows, 8)?, 1],
+    )
+}
+
+/// Which convolution [`conv_tex`] runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ConvKind {
+    /// Conv2d with replicate padding (weight `[cout, cin, k, k]`).
+    Direct,
+    /// ConvTranspose2d with stride 2 and output `2h x 2w` (weight `[cin, cout, k, k]`).
+    Transposed,
+}
+
+/// `dst = act(conv(x) + bias)` with `x` packed by [`pack_tex`] and `w` a weight texture from
+/// [`crate::weights`] (`shaders/conv_tex.wgsl`).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn conv_tex(
+    ctx: &GpuContext,
+    kind: ConvKind,
+    x: &DeviceTexture,
+    w: &DeviceTexture,
+    bias: Option<&wgpu::Buffer>,
+    dst: View<'_>,
+    s: ConvShape,
+    act: Act,
+) -> Result<Dispatch> {
+    let cin4 = s.cin.div_ceil(4);
+    let (ho, wo, entry) = match kind {
+        ConvKind::Direct => {
+            if s.k == 0 || s.stride == 0 || s.h + 2 * s.pad < s.k || s.w + 2 * s.pad < s.k {
+                return Err(GpuError::Size {
+                    what: "conv_tex",
+                    reason: format!("{s:?} has no output"),
+                });
+            }
+            let (ho, wo) = s.out_hw();
+            (ho, wo, "conv_tex")
+        }
+        ConvKind::Transposed => {
+            if s.stride != 2 || s.k != 2 * s.pad + 2 {
+                return Err(GpuError::Size {
+                    what: "conv_t_tex",
+                    reason: format!("{s:?} is not a stride-2 upsampling by exactly 2"),
+                });
+            }
+            (2 * s.h, 2 * s.w, "conv_t_tex")
+        }
+    };
+    if s.w > x.texels
+        || channel_block_rows(s.cin, s.h) > x.rows
+        || w.rows < s.cout
+        || w.texels < s.k * s.k * cin4
+    {
+        return Err(GpuError::Size {
+            what: "conv_tex",
+            reason: format!(
+                "{s:?} does not fit input {}x{} or weight {}x{} texels",
+                x.texels, x.rows, w.texels, w.rows
+            ),
+        });
+    }
+    let (act_code, slope) = act.code();
+    let phase_blocks = (s.h * s.w).div_ceil(16);
+    let params = ConvTexParams {
+        cin4,
+        h: s.h,
+        w: s.w,
+        cout: s.cout,
+        ho,
+        wo,
+        stride: s.stride,
+        pad: s.pad,
+        out_base: dst.base,
+        flags: u32::from(bias.is_some()),
+        act: act_code,
+        slope,
+        phase_blocks,
+        _pad0: 0,
+        _pad1: 0,
+        _pad2: 0,
+    };
+    let pixel_blocks = match kind {
+        ConvKind::Direct => u64::from(ho * wo).div_ceil(16),
+        ConvKind::Transposed => 4 * u64::from(phase_blocks),
+    };
+    let [gx, gy, _] = linear_groups(pixel_blocks, 1)?;
+    launch(
+        ctx,
+        PipelineKey {
+            family: Family::ConvTex,
+            entry,
+            precision: w.precision,
+            constants: vec![("K", s.k)],
+        },
+        &params,
+        &[
+            Res::Tex(&x.view),
+            Res::Tex(&w.view),
+            Res::Buf(bias.unwrap_or(ctx.dummy())),
+            Res::Buf(dst.buf),
+        ],
+        [gx, gy, groups_1d(s.cout, 16)?],
     )
 }
 

@@ -202,6 +202,57 @@ uniforms! {
         slope: f32,
     }
 
+    /// `shaders/tex_pack.wgsl`: an NCHW buffer tensor into a channel-block texture.
+    struct PackParams {
+        /// Channels of the tensor.
+        channels: u32,
+        /// Height (pixels).
+        h: u32,
+        /// Width (pixels).
+        w: u32,
+        /// Element offset of the tensor in its buffer.
+        in_base: u32,
+        /// 1: apply the per-channel norm affine on the way.
+        use_norm: u32,
+        _pad0: u32,
+        _pad1: u32,
+        _pad2: u32,
+    }
+
+    /// `shaders/conv_tex.wgsl`: an implicit-GEMM convolution on texture operands.
+    struct ConvTexParams {
+        /// Input texels per pixel (`⌈cin / 4⌉`).
+        cin4: u32,
+        /// Input height (pixels).
+        h: u32,
+        /// Input width (pixels).
+        w: u32,
+        /// Output channels.
+        cout: u32,
+        /// Output height (pixels).
+        ho: u32,
+        /// Output width (pixels).
+        wo: u32,
+        /// Stride (pixels; `conv_t_tex`: always 2).
+        stride: u32,
+        /// Padding (pixels): replicate for `conv_tex`, cropped from the full output for
+        /// `conv_t_tex`.
+        pad: u32,
+        /// Element offset of the output tensor in its buffer.
+        out_base: u32,
+        /// Bit 0: add the bias.
+        flags: u32,
+        /// Activation code ([`crate::ops::Act`]: 0 none, 2 LeakyReLU; ReLU is LeakyReLU(0)).
+        act: u32,
+        /// LeakyReLU negative slope (unused for other codes).
+        slope: f32,
+        /// `conv_t_tex`: 16-pixel blocks per output phase (`⌈h·w / 16⌉`).
+        phase_blocks: u32,
+        _pad0: u32,
+        _pad1: u32,
+        _pad2: u32,
+    }
+
     /// `shaders/fma_peak.wgsl`: the FMA throughput probe.
     struct PeakParams {
         /// Loop iterations per invocation (64 flops each).

@@ -52,6 +52,10 @@ pub enum Family {
     Matmul,
     /// `matmul_tex.wgsl`: texture-operand, subgroup-broadcast matmul for CPU adapters.
     MatmulTex,
+    /// `tex_pack.wgsl`: NCHW buffer tensor into a channel-block texture.
+    TexPack,
+    /// `conv_tex.wgsl`: implicit-GEMM convolutions on textures for CPU adapters.
+    ConvTex,
     /// `fma_peak.wgsl`: FMA throughput probe (f32 only).
     FmaPeak,
     /// `smoke.wgsl`: one-line smoke test (f32 only).
@@ -72,7 +76,7 @@ pub(crate) enum Binding {
 
 impl Family {
     /// Every family, for validation tests.
-    pub const ALL: [Family; 10] = [
+    pub const ALL: [Family; 12] = [
         Family::Conv2d,
         Family::ConvTranspose,
         Family::InstanceNorm,
@@ -81,6 +85,8 @@ impl Family {
         Family::PosEnc,
         Family::Matmul,
         Family::MatmulTex,
+        Family::TexPack,
+        Family::ConvTex,
         Family::FmaPeak,
         Family::Smoke,
     ];
@@ -96,6 +102,8 @@ impl Family {
             Family::PosEnc => "pos_enc.wgsl",
             Family::Matmul => "matmul.wgsl",
             Family::MatmulTex => "matmul_tex.wgsl",
+            Family::TexPack => "tex_pack.wgsl",
+            Family::ConvTex => "conv_tex.wgsl",
             Family::FmaPeak => "fma_peak.wgsl",
             Family::Smoke => "smoke.wgsl",
         }
@@ -112,6 +120,8 @@ impl Family {
             Family::PosEnc => include_str!("../../../shaders/pos_enc.wgsl"),
             Family::Matmul => include_str!("../../../shaders/matmul.wgsl"),
             Family::MatmulTex => include_str!("../../../shaders/matmul_tex.wgsl"),
+            Family::TexPack => include_str!("../../../shaders/tex_pack.wgsl"),
+            Family::ConvTex => include_str!("../../../shaders/conv_tex.wgsl"),
             Family::FmaPeak => include_str!("../../../shaders/fma_peak.wgsl"),
             Family::Smoke => include_str!("../../../shaders/smoke.wgsl"),
         }
@@ -150,6 +160,8 @@ impl Family {
             Family::PosEnc => &[U, R, W, ST],
             Family::Matmul => &[U, R, R, W],
             Family::MatmulTex => &[U, T, T, ST, W],
+            Family::TexPack => &[U, R, R, ST],
+            Family::ConvTex => &[U, T, T, R, W],
             Family::FmaPeak => &[U, W],
             Family::Smoke => &[W],
         }
@@ -166,8 +178,8 @@ mod tests {
             .ok_or_else(|| format!("{family:?} has no {precision:?} variant"))?;
         let module = naga::front::wgsl::parse_str(&src)
             .map_err(|e| format!("{}: {}", family.file_name(), e.emit_to_string(&src)))?;
-        // Subgroup operations are only used by `matmul_tex.wgsl`, which the host selects only
-        // when the device has `Features::SUBGROUP`.
+        // Subgroup operations are only used by `matmul_tex.wgsl` and `conv_tex.wgsl`, which the
+        // host selects only when the device has `Features::SUBGROUP`.
         let caps = match precision {
             Precision::F32 => naga::valid::Capabilities::SUBGROUP,
             Precision::F16 => {

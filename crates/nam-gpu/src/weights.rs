@@ -6,14 +6,24 @@ use crate::context::{DeviceBuffer, DeviceTexture, GpuContext, MatmulVariant};
 use crate::error::{GpuError, Result};
 use crate::shaders::Precision;
 
+/// A convolution weight on the device: the PyTorch-layout buffer the direct kernels read and,
+/// when the context runs texture kernels ([`MatmulVariant::Texture`]), the same taps as the
+/// weight texture of `shaders/conv_tex.wgsl` (row = output channel, texel
+/// `(ky·k + kx)·⌈cin/4⌉ + l` = input channels `4l .. 4l + 3` of that tap).
+#[derive(Debug)]
+pub(crate) struct ConvWeight {
+    pub buf: DeviceBuffer,
+    pub tex: Option<DeviceTexture>,
+}
+
 /// Device weights of one HA-Conv (in -> out, stride s).
 #[derive(Debug)]
 pub(crate) struct HaWeights {
-    pub gate: DeviceBuffer,
-    pub feat: DeviceBuffer,
-    pub inc1a: DeviceBuffer,
-    pub inc1b: DeviceBuffer,
-    pub inc2: DeviceBuffer,
+    pub gate: ConvWeight,
+    pub feat: ConvWeight,
+    pub inc1a: ConvWeight,
+    pub inc1b: ConvWeight,
+    pub inc2: ConvWeight,
 }
 
 /// Device weights of a BasicBlock; `bn*` are interleaved `[out, 2]` (scale, shift).
@@ -27,7 +37,7 @@ pub(crate) struct BasicWeights {
     pub ha2: HaWeights,
     pub bn2: DeviceBuffer,
     /// conv1x1 weight and folded-BN bias, when the shape changes.
-    pub down: Option<(DeviceBuffer, DeviceBuffer)>,
+    pub down: Option<(ConvWeight, DeviceBuffer)>,
 }
 
 /// Device weights of a ReverseBlock (weights then folded-BN biases).
@@ -35,9 +45,9 @@ pub(crate) struct BasicWeights {
 pub(crate) struct ReverseWeights {
     pub cin: u32,
     pub cout: u32,
-    pub up4: (DeviceBuffer, DeviceBuffer),
-    pub conv: (DeviceBuffer, DeviceBuffer),
-    pub up2: (DeviceBuffer, DeviceBuffer),
+    pub up4: (ConvWeight, DeviceBuffer),
+    pub conv: (ConvWeight, DeviceBuffer),
+    pub up2: (ConvWeight, DeviceBuffer),
 }
 
 /// The U-Net `M_est` on the device.
@@ -50,18 +60,52 @@ pub(crate) struct UnetWeights {
     pub param_channels: u32,
     pub eps: f32,
     pub ha_slope: f32,
-    pub stem: DeviceBuffer,
+    pub stem: ConvWeight,
     pub enc: Vec<[BasicWeights; 2]>,
     pub dec_reverse: Vec<ReverseWeights>,
     pub dec_basic: Vec<BasicWeights>,
     pub dec4: [BasicWeights; 2],
-    pub head: DeviceBuffer,
+    pub head: ConvWeight,
 }
 
 impl UnetWeights {
     /// Input channels of the head: the width, plus the network input with the input skip.
     pub fn head_in_channels(&self) -> u32 {
         self.width + if self.input_skip { self.in_channels } else { 0 }
+    }
+
+    /// Every convolution weight, in no particular order.
+    fn convs(&self) -> impl Iterator<Item = &ConvWeight> {
+        fn ha(h: &HaWeights) -> [&ConvWeight; 5] {
+            [&h.gate, &h.feat, &h.inc1a, &h.inc1b, &h.inc2]
+        }
+        fn basic(b: &BasicWeights) -> impl Iterator<Item = &ConvWeight> {
+            ha(&b.ha1)
+                .into_iter()
+                .chain(ha(&b.ha2))
+                .chain(b.down.as_ref().map(|d| &d.0))
+        }
+        let blocks = self
+            .enc
+            .iter()
+            .flatten()
+            .chain(&self.dec_basic)
+            .chain(&self.dec4)
+            .flat_map(basic);
+        let reverse = self
+            .dec_reverse
+            .iter()
+            .flat_map(|r| [&r.up4.0, &r.conv.0, &r.up2.0]);
+        [&self.stem, &self.head]
+            .into_iter()
+            .chain(blocks)
+            .chain(reverse)
+    }
+
+    /// Whether every convolution has its weight texture (uploaded for
+    /// [`MatmulVariant::Texture`] contexts).
+    pub fn has_conv_textures(&self) -> bool {
+        self.convs().all(|w| w.tex.is_some())
     }
 }
 
@@ -129,6 +173,40 @@ impl Uploader<'_> {
         self.ctx.upload(&label, data, self.precision)
     }
 
+    /// A convolution weight of PyTorch shape `[cout, cin, k, k]`, or `[cin, cout, k, k]` when
+    /// `transposed`.
+    fn conv(
+        &self,
+        s: &Scope<'_>,
+        name: &str,
+        shape: [usize; 4],
+        transposed: bool,
+    ) -> Result<ConvWeight> {
+        let data = s.get(name, &shape)?;
+        let label = format!("{}.{name}", s.prefix());
+        let tex = if self.ctx.matmul_variant() == MatmulVariant::Texture {
+            let (cout, cin) = if transposed {
+                (shape[1], shape[0])
+            } else {
+                (shape[0], shape[1])
+            };
+            let (m, cols) = conv_weight_matrix(data, cout, cin, shape[2], transposed);
+            Some(self.ctx.upload_matrix(
+                &label,
+                &m,
+                u(cout, "channels")?,
+                u(cols, "width")?,
+                self.precision,
+            )?)
+        } else {
+            None
+        };
+        Ok(ConvWeight {
+            buf: self.ctx.upload(&label, data, self.precision)?,
+            tex,
+        })
+    }
+
     fn affine(&self, s: &Scope<'_>, name: &str, n: usize) -> Result<DeviceBuffer> {
         let scale = s.get(&format!("{name}.scale"), &[n])?;
         let shift = s.get(&format!("{name}.shift"), &[n])?;
@@ -143,18 +221,18 @@ impl Uploader<'_> {
 
     fn ha(&self, s: &Scope<'_>, cin: usize, cout: usize) -> Result<HaWeights> {
         Ok(HaWeights {
-            gate: self.get(s, "gate.weight", &[cout, cin, 3, 3])?,
-            feat: self.get(s, "feat.weight", &[cout, cin, 3, 3])?,
-            inc1a: self.get(s, "inc1a.weight", &[cout, cin, 3, 3])?,
-            inc1b: self.get(s, "inc1b.weight", &[cout / 2, cout, 3, 3])?,
-            inc2: self.get(s, "inc2.weight", &[cout / 2, cin, 3, 3])?,
+            gate: self.conv(s, "gate.weight", [cout, cin, 3, 3], false)?,
+            feat: self.conv(s, "feat.weight", [cout, cin, 3, 3], false)?,
+            inc1a: self.conv(s, "inc1a.weight", [cout, cin, 3, 3], false)?,
+            inc1b: self.conv(s, "inc1b.weight", [cout / 2, cout, 3, 3], false)?,
+            inc2: self.conv(s, "inc2.weight", [cout / 2, cin, 3, 3], false)?,
         })
     }
 
     fn basic(&self, s: &Scope<'_>, cin: usize, cout: usize, stride: usize) -> Result<BasicWeights> {
         let down = if cin != cout || stride != 1 {
             Some((
-                self.get(s, "down.weight", &[cout, cin, 1, 1])?,
+                self.conv(s, "down.weight", [cout, cin, 1, 1], false)?,
                 self.get(s, "down.bias", &[cout])?,
             ))
         } else {
@@ -177,19 +255,48 @@ impl Uploader<'_> {
             cin: u(cin, "channels")?,
             cout: u(cout, "channels")?,
             up4: (
-                self.get(s, "up4.weight", &[cin, cout, 4, 4])?,
+                self.conv(s, "up4.weight", [cin, cout, 4, 4], true)?,
                 self.get(s, "up4.bias", &[cout])?,
             ),
             conv: (
-                self.get(s, "conv.weight", &[cout, cout, 3, 3])?,
+                self.conv(s, "conv.weight", [cout, cout, 3, 3], false)?,
                 self.get(s, "conv.bias", &[cout])?,
             ),
             up2: (
-                self.get(s, "up2.weight", &[cin, cout, 2, 2])?,
+                self.conv(s, "up2.weight", [cin, cout, 2, 2], true)?,
                 self.get(s, "up2.bias", &[cout])?,
             ),
         })
     }
+}
+
+/// The weight texture layout of `shaders/conv_tex.wgsl` for a `k x k` convolution weight
+/// (`[cout, cin, k, k]`, or `[cin, cout, k, k]` when `transposed`): `cout` rows of
+/// `k·k·⌈cin/4⌉·4` values, input channels zero-padded to whole texels. Returns the rows and
+/// the row length.
+pub(crate) fn conv_weight_matrix(
+    w: &[f32],
+    cout: usize,
+    cin: usize,
+    k: usize,
+    transposed: bool,
+) -> (Vec<f32>, usize) {
+    let cin4 = cin.div_ceil(4);
+    let cols = k * k * cin4 * 4;
+    let mut m = vec![0.0f32; cout * cols];
+    for co in 0..cout {
+        for ci in 0..cin {
+            for tap in 0..k * k {
+                let src = if transposed {
+                    (ci * cout + co) * k * k + tap
+                } else {
+                    (co * cin + ci) * k * k + tap
+                };
+                m[co * cols + (tap * cin4 + ci / 4) * 4 + ci % 4] = w[src];
+            }
+        }
+    }
+    (m, cols)
 }
 
 /// Uploads the U-Net (DESIGN §4, FORMAT.md tensor names).
@@ -230,7 +337,7 @@ pub(crate) fn upload_unet(
         param_channels: u(cfg.param_channels, "param_channels")?,
         eps: cfg.norm_eps,
         ha_slope: cfg.slopes.ha,
-        stem: up.get(&est, "stem.weight", &[c, cfg.in_channels, 7, 7])?,
+        stem: up.conv(&est, "stem.weight", [c, cfg.in_channels, 7, 7], false)?,
         enc,
         dec_reverse,
         dec_basic,
@@ -238,10 +345,11 @@ pub(crate) fn upload_unet(
             up.basic(&dec4.scope("0"), 3 * c, c, 1)?,
             up.basic(&dec4.scope("1"), c, c, 1)?,
         ],
-        head: up.get(
+        head: up.conv(
             &est,
             "head.weight",
-            &[cfg.param_channels, cfg.head_in_channels(), 7, 7],
+            [cfg.param_channels, cfg.head_in_channels(), 7, 7],
+            false,
         )?,
     })
 }

@@ -27,7 +27,8 @@ pub struct Args {
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Also time the image relights on the first wgpu adapter (lavapipe included): the
-    /// general and the directional plan, each against the same path on the CPU.
+    /// general and the directional plan and the estimate, each against the same path on the
+    /// CPU.
     #[arg(long)]
     pub gpu: bool,
 }
@@ -264,20 +265,25 @@ pub fn run(args: &Args) -> Result<()> {
     let sg_gflops = rows[0].flops / rows[0].ms / 1e6;
     print!("{}", table(&rows, sg_gflops, threads(), s, rep));
     if args.gpu {
-        gpu_rows(&model, map, rep)?;
+        gpu_rows(&model, map, &input, rep)?;
     }
     Ok(())
 }
 
 #[cfg(feature = "gpu")]
-fn gpu_rows(model: &NeuralModel, map: nam_model::ParamMap, rep: usize) -> Result<()> {
+fn gpu_rows(
+    model: &NeuralModel,
+    map: nam_model::ParamMap,
+    input: &[f32],
+    rep: usize,
+) -> Result<()> {
     println!();
-    print!("{}", super::bench_gpu::run(model, map, rep)?);
+    print!("{}", super::bench_gpu::run(model, map, input, rep)?);
     Ok(())
 }
 
 #[cfg(not(feature = "gpu"))]
-fn gpu_rows(_: &NeuralModel, _: nam_model::ParamMap, _: usize) -> Result<()> {
+fn gpu_rows(_: &NeuralModel, _: nam_model::ParamMap, _: &[f32], _: usize) -> Result<()> {
     bail!("--gpu: this nam-cli was built without the `gpu` feature")
 }
 

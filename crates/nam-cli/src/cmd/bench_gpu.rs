@@ -1,6 +1,7 @@
 //! `nam-cli bench --gpu`: the image relights of the facade on a wgpu adapter, the general
 //! plan (positional encoding, ND_enc and render MLP per pixel) against the directional plan
-//! (ND_enc once, render MLP per pixel), each also timed on the CPU in the same rounds.
+//! (ND_enc once, render MLP per pixel), and the U-Net estimate, each also timed on the CPU in
+//! the same rounds.
 
 use super::timing::{Case, Row, measure};
 use anyhow::{Context, Result, bail};
@@ -9,8 +10,9 @@ use nam::{DVec3, NeuralMaterial, NeuralModel, Scene, relight};
 use nam_model::ParamMap;
 use std::fmt::Write as _;
 
-/// Times the GPU and CPU relights of `map` (square) and returns the Markdown table.
-pub fn run(model: &NeuralModel, map: ParamMap, rep: usize) -> Result<String> {
+/// Times the GPU and CPU relights of `map` (square) and estimates of `input` (the network
+/// input `[4, s, s]` of the same size) and returns the Markdown table.
+pub fn run(model: &NeuralModel, map: ParamMap, input: &[f32], rep: usize) -> Result<String> {
     let Some(gpu) = nam::nam_gpu::request_device(false) else {
         bail!("--gpu: no wgpu adapter (see the message above)");
     };
@@ -29,8 +31,17 @@ pub fn run(model: &NeuralModel, map: ParamMap, rep: usize) -> Result<String> {
     let net = &model.cpu().render;
     let general_macs = net.macs_per_output(false, false) as u64;
     let directional_macs = net.macs_per_output(false, true) as u64;
+    // The U-Net alone on the device, as the facade's `estimate` runs it on an attached GPU.
+    let mut unet = nam::nam_gpu::GpuNetwork::new(
+        &gpu.device,
+        &gpu.queue,
+        gpu.info.device_type,
+        model.weights(),
+        nam::nam_gpu::Precision::F32,
+    )?;
     let s = map.height;
     let n = s * map.width;
+    let estimate_flops = 2.0 * model.config().estimate_macs(s, s) as f64;
     let material = NeuralMaterial::new(map, on_cpu.fingerprint().to_string())?;
     let point = Scene::new(
         Light::Point(DVec3::from_array([1.5, 1.0, 3.5])),
@@ -60,6 +71,24 @@ pub fn run(model: &NeuralModel, map: ParamMap, rep: usize) -> Result<String> {
             directional,
             df,
         ),
+        (
+            "GPU estimate (M_est)".to_string(),
+            n,
+            estimate_flops,
+            Box::new(|| {
+                unet.estimate(input, s, s)?;
+                Ok(())
+            }),
+        ),
+        (
+            "CPU estimate (M_est)".to_string(),
+            n,
+            estimate_flops,
+            Box::new(|| {
+                model.cpu().unet.estimate(input, s, s)?;
+                Ok(())
+            }),
+        ),
     ];
     let rows = measure(cases, rep)?;
     Ok(table(&rows, &gpu.info, s, rep))
@@ -85,8 +114,8 @@ fn case<'a>(
     )
 }
 
-/// Rows 0–1 are GPU, 2–3 the same paths on the CPU; FLOPs count the network with l0·l1
-/// folded, as the CPU table does.
+/// Rows 0–1 are GPU relights, 2–3 the same paths on the CPU, 4–5 the estimate on GPU and CPU;
+/// FLOPs count the render network with l0·l1 folded, as the CPU table does.
 fn table(rows: &[Row], info: &nam::wgpu::AdapterInfo, s: usize, rep: usize) -> String {
     let mut t = String::new();
     let _ = writeln!(
@@ -100,21 +129,22 @@ fn table(rows: &[Row], info: &nam::wgpu::AdapterInfo, s: usize, rep: usize) -> S
     );
     let _ = writeln!(t, "|---|---:|---:|---:|---:|---:|");
     for (k, r) in rows.iter().enumerate() {
-        let general = &rows[k - k % 2];
-        let other = &rows[(k + 2) % 4];
-        let gpu_over_cpu = if k < 2 {
-            format!("{:.2}", other.ms / r.ms)
+        let (same_backend, cpu) = if k < 4 {
+            (
+                format!("{:.2}", rows[k - k % 2].ms / r.ms),
+                (k < 2).then(|| &rows[k + 2]),
+            )
         } else {
-            "—".to_string()
+            ("—".to_string(), (k == 4).then(|| &rows[5]))
         };
+        let gpu_over_cpu = cpu.map_or("—".to_string(), |c| format!("{:.2}", c.ms / r.ms));
         let _ = writeln!(
             t,
-            "| {} {s}² | {} | {:.2} | {:.1} | {:.2} | {gpu_over_cpu} |",
+            "| {} {s}² | {} | {:.2} | {:.1} | {same_backend} | {gpu_over_cpu} |",
             r.name,
             r.items,
             r.ms,
             r.flops / r.ms / 1e6,
-            general.ms / r.ms,
         );
     }
     t

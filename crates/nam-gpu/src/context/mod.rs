@@ -59,7 +59,8 @@ pub enum MatmulVariant {
     Direct,
     /// Texture operands, 16x16 blocks per 8-invocation subgroup with `subgroupBroadcast`
     /// (CPU adapters such as llvmpipe with `Features::SUBGROUP` and subgroups of >= 8).
-    /// Only the render MLP has a texture plan; standalone products use [`MatmulVariant::Direct`].
+    /// The render MLP and the U-Net's convolutions (`conv_tex.wgsl`, implicit GEMMs of the
+    /// same shape) have texture plans; standalone products use [`MatmulVariant::Direct`].
     Texture,
 }
 

@@ -4,11 +4,11 @@
 use nam_weights::UNET_MULTIPLE;
 
 use super::{GpuNetwork, MAX_CACHED_PLANS, to_u32};
-use crate::context::{DeviceBuffer, Dispatch, GpuContext};
+use crate::context::{DeviceBuffer, DeviceTexture, Dispatch, GpuContext, MatmulVariant};
 use crate::error::{GpuError, Result};
-use crate::ops::{self, Act, ConvShape, Elementwise, GateTail, View};
+use crate::ops::{self, Act, ConvKind, ConvShape, Elementwise, GateTail, View};
 use crate::shaders::Precision;
-use crate::weights::{BasicWeights, HaWeights, ReverseWeights};
+use crate::weights::{BasicWeights, ConvWeight, HaWeights, ReverseWeights};
 
 #[derive(Debug)]
 pub(super) struct EstimatePlan {
@@ -32,16 +32,42 @@ struct Scratch {
     norm: DeviceBuffer,
 }
 
+/// Channel-block textures the texture convolutions read (`shaders/tex_pack.wgsl`), shared by
+/// all blocks: `x` a block's input, `n` its InstanceNorm, `t` an intermediate.
+#[derive(Clone)]
+struct TexScratch {
+    x: DeviceTexture,
+    n: DeviceTexture,
+    t: DeviceTexture,
+}
+
+/// Which scratch texture a packed input goes to.
+#[derive(Clone, Copy)]
+enum Slot {
+    X,
+    N,
+    T,
+}
+
+/// A convolution input: a buffer view (direct kernels; `norm` applied as they load it) or the
+/// texture it was packed into.
+enum Operand<'a> {
+    Buf(View<'a>, Option<wgpu::Buffer>),
+    Tex(DeviceTexture),
+}
+
 struct UnetBuilder<'a> {
     ctx: &'a GpuContext,
     precision: Precision,
     eps: f32,
     slope: f32,
     s: Scratch,
+    /// Present when the plan runs the texture convolutions.
+    tex: Option<TexScratch>,
     out: Vec<Dispatch>,
 }
 
-impl UnetBuilder<'_> {
+impl<'v> UnetBuilder<'_> {
     fn fits(&self, elems: u64, what: &'static str) -> Result<()> {
         if elems > self.s.elems {
             return Err(GpuError::Size {
@@ -52,20 +78,90 @@ impl UnetBuilder<'_> {
         Ok(())
     }
 
+    /// `x` ([channels, h, w]) as a convolution input: on the texture path packed into `slot`
+    /// (with `norm` applied), else the view itself.
+    fn operand(
+        &mut self,
+        x: View<'v>,
+        dims: (u32, u32, u32),
+        norm: Option<&wgpu::Buffer>,
+        slot: Slot,
+    ) -> Result<Operand<'v>> {
+        let Some(t) = &self.tex else {
+            return Ok(Operand::Buf(x, norm.cloned()));
+        };
+        let tex = match slot {
+            Slot::X => &t.x,
+            Slot::N => &t.n,
+            Slot::T => &t.t,
+        }
+        .clone();
+        self.out.push(ops::pack_tex(self.ctx, x, dims, norm, &tex)?);
+        Ok(Operand::Tex(tex))
+    }
+
+    /// Records `dst = act(conv(x) + bias)` with the kernel that matches the operand.
+    #[allow(clippy::too_many_arguments)]
+    fn conv(
+        &mut self,
+        kind: ConvKind,
+        x: &Operand<'_>,
+        w: &ConvWeight,
+        bias: Option<&DeviceBuffer>,
+        dst: View<'_>,
+        shape: ConvShape,
+        act: Act,
+    ) -> Result<()> {
+        let bias = bias.map(|b| &b.buffer);
+        let (ctx, p) = (self.ctx, self.precision);
+        let d = match (x, &w.tex) {
+            (Operand::Tex(t), Some(wt)) => ops::conv_tex(ctx, kind, t, wt, bias, dst, shape, act)?,
+            (Operand::Buf(v, norm), _) => match kind {
+                ConvKind::Direct => ops::conv2d(
+                    ctx,
+                    p,
+                    *v,
+                    &w.buf.buffer,
+                    bias,
+                    norm.as_ref(),
+                    dst,
+                    shape,
+                    act,
+                )?,
+                ConvKind::Transposed => ops::conv_transpose2d(
+                    ctx,
+                    p,
+                    *v,
+                    &w.buf.buffer,
+                    bias,
+                    dst,
+                    shape,
+                    act != Act::None,
+                )?,
+            },
+            (Operand::Tex(_), None) => {
+                return Err(GpuError::Unsupported(
+                    "texture convolution without a weight texture".into(),
+                ));
+            }
+        };
+        self.out.push(d);
+        Ok(())
+    }
+
     /// HA-Conv + folded BN + tail into `dst` ([cout, h/s, w/s]).
     #[allow(clippy::too_many_arguments)]
     fn ha(
         &mut self,
         w: &HaWeights,
         bn: &DeviceBuffer,
-        x: View<'_>,
+        x: View<'v>,
         (cin, h, wd): (u32, u32, u32),
         cout: u32,
         stride: u32,
         tail: GateTail<'_>,
         dst: View<'_>,
     ) -> Result<()> {
-        let (ctx, p) = (self.ctx, self.precision);
         let shape = ConvShape {
             cin,
             h,
@@ -79,86 +175,56 @@ impl UnetBuilder<'_> {
         let plane = u64::from(ho) * u64::from(wo);
         self.fits(u64::from(cout) * u64::from(h) * u64::from(wd), "HA scratch")?;
         let half = cout / 2;
-        let s = &self.s;
-        let mut d = vec![
-            ops::instance_norm_stats(ctx, p, x, cin, h * wd, self.eps, &s.norm.buffer)?,
-            ops::conv2d(
-                ctx,
-                p,
-                x,
-                &w.gate.buffer,
-                None,
-                None,
-                View::new(&s.a.buffer, 0)?,
-                shape,
-                Act::None,
-            )?,
-            ops::conv2d(
-                ctx,
-                p,
-                x,
-                &w.feat.buffer,
-                None,
-                Some(&s.norm.buffer),
-                View::new(&s.b.buffer, 0)?,
-                shape,
-                Act::None,
-            )?,
-            ops::conv2d(
-                ctx,
-                p,
-                x,
-                &w.inc1a.buffer,
-                None,
-                None,
-                View::new(&s.t.buffer, 0)?,
-                ConvShape { stride: 1, ..shape },
-                Act::None,
-            )?,
-            ops::conv2d(
-                ctx,
-                p,
-                View::new(&s.t.buffer, 0)?,
-                &w.inc1b.buffer,
-                None,
-                None,
-                View::new(&s.c.buffer, 0)?,
-                ConvShape {
-                    cin: cout,
-                    cout: half,
-                    ..shape
-                },
-                Act::None,
-            )?,
-            ops::conv2d(
-                ctx,
-                p,
-                x,
-                &w.inc2.buffer,
-                None,
-                None,
-                View::new(&s.c.buffer, u64::from(half) * plane)?,
-                ConvShape {
-                    cout: cout - half,
-                    ..shape
-                },
-                Act::None,
-            )?,
-            ops::ha_gate(
-                ctx,
-                p,
-                &s.a.buffer,
-                &s.b.buffer,
-                &s.c.buffer,
-                &bn.buffer,
-                tail,
-                dst,
-                cout,
-                to_u32(plane, "plane")?,
-                self.slope,
-            )?,
-        ];
-        self.out.append(&mut d);
+        let (a, b, c, t) = (
+            self.s.a.buffer.clone(),
+            self.s.b.buffer.clone(),
+            self.s.c.buffer.clone(),
+            self.s.t.buffer.clone(),
+        );
+        let norm = self.s.norm.buffer.clone();
+        self.out.push(ops::instance_norm_stats(
+            self.ctx,
+            self.precision,
+            x,
+            cin,
+            h * wd,
+            self.eps,
+            &norm,
+        )?);
+        let xin = self.operand(x, (cin, h, wd), None, Slot::X)?;
+        let xn = self.operand(x, (cin, h, wd), Some(&norm), Slot::N)?;
+        let none = Act::None;
+        let direct = ConvKind::Direct;
+        self.conv(direct, &xin, &w.gate, None, View::new(&a, 0)?, shape, none)?;
+        self.conv(direct, &xn, &w.feat, None, View::new(&b, 0)?, shape, none)?;
+        let s1 = ConvShape { stride: 1, ..shape };
+        self.conv(direct, &xin, &w.inc1a, None, View::new(&t, 0)?, s1, none)?;
+        let tin = self.operand(View::new(&t, 0)?, (cout, h, wd), None, Slot::T)?;
+        let inc1b = ConvShape {
+            cin: cout,
+            cout: half,
+            ..shape
+        };
+        self.conv(direct, &tin, &w.inc1b, None, View::new(&c, 0)?, inc1b, none)?;
+        let inc2 = ConvShape {
+            cout: cout - half,
+            ..shape
+        };
+        let c2 = View::new(&c, u64::from(half) * plane)?;
+        self.conv(direct, &xin, &w.inc2, None, c2, inc2, none)?;
+        self.out.push(ops::ha_gate(
+            self.ctx,
+            self.precision,
+            &a,
+            &b,
+            &c,
+            &bn.buffer,
+            tail,
+            dst,
+            cout,
+            to_u32(plane, "plane")?,
+            self.slope,
+        )?);
         Ok(())
     }
 
@@ -166,7 +232,7 @@ impl UnetBuilder<'_> {
     fn basic(
         &mut self,
         b: &BasicWeights,
-        x: View<'_>,
+        x: View<'v>,
         h: u32,
         w: u32,
         dst: View<'_>,
@@ -195,18 +261,17 @@ impl UnetBuilder<'_> {
                     stride: b.stride,
                     pad: 0,
                 };
-                let op = ops::conv2d(
-                    self.ctx,
-                    self.precision,
-                    x,
-                    &dw.buffer,
-                    Some(&db.buffer),
-                    None,
+                // Packed again on the texture path: each block's packs are its own.
+                let xin = self.operand(x, (b.cin, h, w), None, Slot::X)?;
+                self.conv(
+                    ConvKind::Direct,
+                    &xin,
+                    dw,
+                    Some(db),
                     View::new(&d, 0)?,
                     shape,
                     Act::None,
                 )?;
-                self.out.push(op);
                 View::new(&d, 0)?
             }
             None => x,
@@ -227,15 +292,18 @@ impl UnetBuilder<'_> {
     fn reverse(
         &mut self,
         r: &ReverseWeights,
-        x: View<'_>,
+        x: View<'v>,
         h: u32,
         w: u32,
         dst: View<'_>,
     ) -> Result<()> {
-        let (ctx, p) = (self.ctx, self.precision);
         let n = u64::from(r.cout) * u64::from(4 * h * w);
         self.fits(n, "ReverseBlock scratch")?;
-        let s = &self.s;
+        let (a, b, c) = (
+            self.s.a.buffer.clone(),
+            self.s.b.buffer.clone(),
+            self.s.c.buffer.clone(),
+        );
         let up4 = ConvShape {
             cin: r.cin,
             h,
@@ -259,48 +327,45 @@ impl UnetBuilder<'_> {
             stride: 1,
             pad: 1,
         };
-        let mut d = vec![
-            ops::conv_transpose2d(
-                ctx,
-                p,
-                x,
-                &r.up4.0.buffer,
-                Some(&r.up4.1.buffer),
-                View::new(&s.a.buffer, 0)?,
-                up4,
-                true,
-            )?,
-            ops::conv2d(
-                ctx,
-                p,
-                View::new(&s.a.buffer, 0)?,
-                &r.conv.0.buffer,
-                Some(&r.conv.1.buffer),
-                None,
-                View::new(&s.b.buffer, 0)?,
-                conv,
-                Act::None,
-            )?,
-            ops::conv_transpose2d(
-                ctx,
-                p,
-                x,
-                &r.up2.0.buffer,
-                Some(&r.up2.1.buffer),
-                View::new(&s.c.buffer, 0)?,
-                up2,
-                false,
-            )?,
-            ops::elementwise(
-                ctx,
-                p,
-                Elementwise::AddRelu(View::new(&s.c.buffer, 0)?),
-                View::new(&s.b.buffer, 0)?,
-                dst,
-                to_u32(n, "elements")?,
-            )?,
-        ];
-        self.out.append(&mut d);
+        let t = ConvKind::Transposed;
+        let xin = self.operand(x, (r.cin, h, w), None, Slot::X)?;
+        self.conv(
+            t,
+            &xin,
+            &r.up4.0,
+            Some(&r.up4.1),
+            View::new(&a, 0)?,
+            up4,
+            Act::Leaky(0.0),
+        )?;
+        let ain = self.operand(View::new(&a, 0)?, (r.cout, 2 * h, 2 * w), None, Slot::T)?;
+        let (cw, cb) = &r.conv;
+        self.conv(
+            ConvKind::Direct,
+            &ain,
+            cw,
+            Some(cb),
+            View::new(&b, 0)?,
+            conv,
+            Act::None,
+        )?;
+        self.conv(
+            t,
+            &xin,
+            &r.up2.0,
+            Some(&r.up2.1),
+            View::new(&c, 0)?,
+            up2,
+            Act::None,
+        )?;
+        self.out.push(ops::elementwise(
+            self.ctx,
+            self.precision,
+            Elementwise::AddRelu(View::new(&c, 0)?),
+            View::new(&b, 0)?,
+            dst,
+            to_u32(n, "elements")?,
+        )?);
         Ok(())
     }
 }
@@ -311,6 +376,40 @@ fn v(buf: &DeviceBuffer, base: u64) -> Result<View<'_>> {
 }
 
 impl GpuNetwork {
+    /// The channel-block textures of a texture-convolution plan for an `h x w` (padded) image,
+    /// sized for the largest input any convolution packs; `None` when a weight lacks its
+    /// texture or the image needs textures past the device limit (the plan then runs the
+    /// buffer kernels).
+    fn texture_scratch(&self, h: u32, w: u32) -> Result<Option<TexScratch>> {
+        let u = &self.unet;
+        if !u.has_conv_textures() {
+            return Ok(None);
+        }
+        let c = u.width;
+        // (channels, height) of every packed input: the head and stem at full size, each
+        // level's block inputs and inception intermediates, the decoders' concatenations.
+        let mut inputs = vec![(u.head_in_channels(), h), (u.in_channels, h), (3 * c, h)];
+        for l in 0..4 {
+            inputs.extend([(c << l, h >> l), (c << (l + 1), h >> l)]);
+        }
+        inputs.extend([(8 * c, h / 8), (12 * c, h / 4), (6 * c, h / 2)]);
+        let rows = inputs
+            .iter()
+            .map(|&(ch, ht)| ops::channel_block_rows(ch, ht))
+            .max()
+            .unwrap_or(1);
+        let max = self.ctx.device().limits().max_texture_dimension_2d;
+        if rows > max || w > max {
+            return Ok(None);
+        }
+        let mk = |label| self.ctx.texture(label, w, rows, self.precision);
+        Ok(Some(TexScratch {
+            x: mk("conv input")?,
+            n: mk("conv input, normalised")?,
+            t: mk("conv intermediate")?,
+        }))
+    }
+
     fn build_estimate_plan(&self, h: u32, w: u32) -> Result<EstimatePlan> {
         let (ctx, p) = (&self.ctx, self.precision);
         let u = &self.unet;
@@ -349,20 +448,25 @@ impl GpuNetwork {
         let cat2 = mk("cat2", 12 * c64 * hw / 16)?; // [8C x | 4C e3] at H/4
         let e4 = mk("e4", 8 * c64 * hw / 64)?;
         let bott = mk("bottleneck", 8 * c64 * hw / 64)?;
+        let tex = if self.ctx.matmul_variant() == MatmulVariant::Texture {
+            self.texture_scratch(h, w)?
+        } else {
+            None
+        };
         let mut b = UnetBuilder {
             ctx,
             precision: p,
             eps: u.eps,
             slope: u.ha_slope,
             s,
+            tex,
             out: Vec::new(),
         };
-        b.out.push(ops::conv2d(
-            ctx,
-            p,
-            v(&input, input_at)?,
-            &u.stem.buffer,
-            None,
+        let stem_in = b.operand(v(&input, input_at)?, (u.in_channels, h, w), None, Slot::X)?;
+        b.conv(
+            ConvKind::Direct,
+            &stem_in,
+            &u.stem,
             None,
             v(&stem_out, 0)?,
             ConvShape {
@@ -375,7 +479,7 @@ impl GpuNetwork {
                 pad: 3,
             },
             Act::None,
-        )?);
+        )?;
         // Encoder: stage k writes its output where the decoder concatenation needs it.
         let skips = [
             v(&cat4, 2 * c64 * hw)?,
@@ -418,12 +522,11 @@ impl GpuNetwork {
         b.basic(&u.dec4[0], v(&cat4, 0)?, h, w, v(&mid, 0)?)?;
         let head_in = mid2.as_ref().unwrap_or(&input);
         b.basic(&u.dec4[1], v(&mid, 0)?, h, w, v(head_in, 0)?)?;
-        b.out.push(ops::conv2d(
-            ctx,
-            p,
-            v(head_in, 0)?,
-            &u.head.buffer,
-            None,
+        let head_x = b.operand(v(head_in, 0)?, (u.head_in_channels(), h, w), None, Slot::X)?;
+        b.conv(
+            ConvKind::Direct,
+            &head_x,
+            &u.head,
             None,
             v(&output, 0)?,
             ConvShape {
@@ -436,7 +539,7 @@ impl GpuNetwork {
                 pad: 3,
             },
             Act::None,
-        )?);
+        )?;
         Ok(EstimatePlan {
             input,
             input_at,

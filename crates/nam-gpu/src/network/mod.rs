@@ -83,18 +83,22 @@ impl GpuNetwork {
         &self.ctx
     }
 
-    /// Switches the render MLP's matmul variant (for comparisons and tests; all compute the
-    /// same product). `Texture` needs the layer textures, uploaded by [`GpuNetwork::new`] only
-    /// when the context chose that variant.
+    /// Switches the kernel variant of the render MLP's matmuls and the U-Net's convolutions
+    /// (for comparisons and tests; all compute the same products). `Texture` needs the layer
+    /// and convolution textures, uploaded by [`GpuNetwork::new`] only when the context chose
+    /// that variant; the others run the U-Net on the buffer convolution kernels.
     pub fn set_matmul_variant(&mut self, variant: MatmulVariant) -> Result<()> {
         let r = &self.render;
-        if variant == MatmulVariant::Texture && r.nd.iter().chain(&r.mlp).any(|l| l.tex.is_none()) {
+        let textures =
+            r.nd.iter().chain(&r.mlp).all(|l| l.tex.is_some()) && self.unet.has_conv_textures();
+        if variant == MatmulVariant::Texture && !textures {
             return Err(GpuError::Unsupported(
-                "texture matmul: this network was built without layer textures".into(),
+                "texture kernels: this network was built without weight textures".into(),
             ));
         }
         self.ctx.set_matmul_variant(variant);
         self.render_plans.clear();
+        self.estimate_plans.clear();
         Ok(())
     }
 
