@@ -97,7 +97,7 @@ class LeanRelight:
 
     def run(self, p: torch.Tensor, dirs: torch.Tensor, chunk: int, fn=None) -> torch.Tensor:
         fn = fn or self.chunk
-        out = torch.empty(p.shape[0], 3)
+        out = torch.empty(p.shape[0], 3, device=p.device)
         for i in range(0, p.shape[0], chunk):
             out[i : i + chunk] = fn(p[i : i + chunk], dirs[i : i + chunk])
         return out

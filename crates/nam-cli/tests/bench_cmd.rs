@@ -129,7 +129,7 @@ const GPU_ROWS: [&str; 6] = [
 
 #[test]
 fn bench_gpu_times_both_plans_on_the_adapter_and_the_cpu() {
-    let o = run(&["bench", "--size", "16", "--repeat", "1", "--gpu"]);
+    let o = run(&["bench", "--size", "16", "--repeat", "1", "--gpu-only"]);
     let (stdout, stderr) = (
         String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr),
@@ -143,6 +143,17 @@ fn bench_gpu_times_both_plans_on_the_adapter_and_the_cpu() {
         .split("\nGPU: ")
         .nth(1)
         .unwrap_or_else(|| panic!("no GPU table:\n{stdout}"));
+    assert!(
+        !stdout.contains("sgemm"),
+        "--gpu-only printed the CPU table:\n{stdout}"
+    );
+    let peak: f64 = gpu_table
+        .split("FMA peak (shaders/fma_peak.wgsl) ")
+        .nth(1)
+        .and_then(|t| t.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no FMA peak in {gpu_table}"));
+    assert!(peak > 0.0 && peak.is_finite(), "{gpu_table}");
     let rows = table_rows(gpu_table);
     assert_eq!(rows.len(), GPU_ROWS.len(), "{gpu_table}");
     for (k, (row, want)) in rows.iter().zip(GPU_ROWS).enumerate() {

@@ -404,62 +404,74 @@ fn instance_norm_statistics_match_cpu_reference_on_odd_sizes() {
 #[test]
 fn ha_gate_matches_cpu_reference_for_every_tail() {
     let Some(ctx) = ctx() else { return };
+    // (hw, residual offset, output offset): element by element, then the vec4 path.
     for (p, tol) in precisions(ctx) {
-        let (c, hw) = (3usize, 35usize);
-        let n = c * hw;
-        let [a, b, cc, res] = [1, 2, 3, 4].map(|s| {
-            q(
-                &rand_vec(n, 90 + s)
-                    .iter()
-                    .map(|v| 3.0 * v)
-                    .collect::<Vec<_>>(),
-                p,
-            )
-        });
-        let ab = q(&rand_vec(2 * c, 95), p);
-        let bufs = [&a, &b, &cc, &res, &ab].map(|v| up(ctx, v, p));
-        for mode in 1..3 {
-            let out = zeros(ctx, n + 2, p);
-            let tail = match mode {
-                1 => GateTail::Relu,
-                _ => GateTail::Residual(View {
-                    buf: &bufs[3].buffer,
-                    base: 0,
-                }),
-            };
-            let d = ops::ha_gate(
-                ctx,
-                p,
-                &bufs[0].buffer,
-                &bufs[1].buffer,
-                &bufs[2].buffer,
-                &bufs[4].buffer,
-                tail,
-                View {
-                    buf: &out.buffer,
-                    base: 2,
-                },
-                c as u32,
-                hw as u32,
-                0.1,
-            )
-            .unwrap_or_else(|e| panic!("{e}"));
-            let got = run(ctx, vec![d], &out, n + 2);
-            let want: Vec<f32> = (0..n)
-                .map(|i| {
-                    let ch = i / hw;
-                    let g = 1.0 / (1.0 + (-f64::from(a[i])).exp());
-                    let bv = f64::from(b[i]);
-                    let f = if bv >= 0.0 { bv } else { 0.1 * bv };
-                    let y = (g * f + f64::from(cc[i])) * f64::from(ab[2 * ch])
-                        + f64::from(ab[2 * ch + 1]);
-                    (match mode {
-                        1 => y.max(0.0),
-                        _ => (y + f64::from(res[i])).max(0.0),
-                    }) as f32
-                })
-                .collect();
-            assert_close(&got[2..], &want, tol, &format!("ha_gate mode {mode} {p:?}"));
+        for (hw, rb, ob) in [(35usize, 1usize, 2usize), (36, 4, 8)] {
+            let c = 3usize;
+            let n = c * hw;
+            let [a, b, cc, res] = [1, 2, 3, 4].map(|s| {
+                q(
+                    &rand_vec(n + rb, 90 + s)
+                        .iter()
+                        .map(|v| 3.0 * v)
+                        .collect::<Vec<_>>(),
+                    p,
+                )
+            });
+            let ab = q(&rand_vec(2 * c, 95), p);
+            let bufs = [&a, &b, &cc, &res, &ab].map(|v| up(ctx, v, p));
+            for mode in 1..3 {
+                let out = zeros(ctx, n + ob, p);
+                let tail = match mode {
+                    1 => GateTail::Relu,
+                    _ => GateTail::Residual(View {
+                        buf: &bufs[3].buffer,
+                        base: rb as u32,
+                    }),
+                };
+                let d = ops::ha_gate(
+                    ctx,
+                    p,
+                    &bufs[0].buffer,
+                    &bufs[1].buffer,
+                    &bufs[2].buffer,
+                    &bufs[4].buffer,
+                    tail,
+                    View {
+                        buf: &out.buffer,
+                        base: ob as u32,
+                    },
+                    c as u32,
+                    hw as u32,
+                    0.1,
+                )
+                .unwrap_or_else(|e| panic!("{e}"));
+                let got = run(ctx, vec![d], &out, n + ob);
+                let want: Vec<f32> = (0..n)
+                    .map(|i| {
+                        let ch = i / hw;
+                        let g = 1.0 / (1.0 + (-f64::from(a[i])).exp());
+                        let bv = f64::from(b[i]);
+                        let f = if bv >= 0.0 { bv } else { 0.1 * bv };
+                        let y = (g * f + f64::from(cc[i])) * f64::from(ab[2 * ch])
+                            + f64::from(ab[2 * ch + 1]);
+                        (match mode {
+                            1 => y.max(0.0),
+                            _ => (y + f64::from(res[rb + i])).max(0.0),
+                        }) as f32
+                    })
+                    .collect();
+                assert!(
+                    got[..ob].iter().all(|&v| v == 0.0),
+                    "ha_gate wrote before its output"
+                );
+                assert_close(
+                    &got[ob..],
+                    &want,
+                    tol,
+                    &format!("ha_gate mode {mode} hw {hw} {p:?}"),
+                );
+            }
         }
     }
 }
@@ -852,7 +864,9 @@ fn texture_convolutions_match_cpu_reference_on_odd_sizes() {
                 pad,
             };
             let (ho, wo) = s.out_hw();
-            let x = q(&rand_vec((cin * h * w) as usize + 5, 80 + i as u64), p);
+            // Even cases start at element 4 (with w a multiple of 4: the vec4 pack), odd at 5.
+            let off = 4 + i % 2;
+            let x = q(&rand_vec((cin * h * w) as usize + off, 80 + i as u64), p);
             let wt = q(&rand_vec((cout * cin * k * k) as usize, 90 + i as u64), p);
             let b = q(&rand_vec(cout as usize, 100 + i as u64), p);
             let norm: Vec<f32> = rand_vec(2 * cin as usize, 110 + i as u64)
@@ -863,17 +877,18 @@ fn texture_convolutions_match_cpu_reference_on_odd_sizes() {
             let xn: Vec<f32> = if use_norm {
                 let hw = (h * w) as usize;
                 let v: Vec<f32> = (0..cin as usize * hw)
-                    .map(|e| x[5 + e] * norm[2 * (e / hw)] + norm[2 * (e / hw) + 1])
+                    .map(|e| x[off + e] * norm[2 * (e / hw)] + norm[2 * (e / hw) + 1])
                     .collect();
                 q(&v, p)
             } else {
-                x[5..].to_vec()
+                x[off..].to_vec()
             };
             let got = run_conv_tex(
                 ctx,
                 p,
                 ops::ConvKind::Direct,
                 &x,
+                off,
                 use_norm.then_some(&norm[..]),
                 &wt,
                 use_bias.then_some(&b[..]),
@@ -893,7 +908,7 @@ fn texture_convolutions_match_cpu_reference_on_odd_sizes() {
             (3u32, 5u32, 7u32, 4u32, 4u32, 1u32, true),
             (5, 3, 5, 3, 2, 0, false),
             (17, 4, 6, 20, 4, 1, false),
-            (8, 9, 2, 16, 2, 0, true),
+            (8, 9, 4, 16, 2, 0, true),
         ];
         for (i, &(cin, h, w, cout, k, pad, relu)) in transposed.iter().enumerate() {
             let s = ConvShape {
@@ -905,7 +920,8 @@ fn texture_convolutions_match_cpu_reference_on_odd_sizes() {
                 stride: 2,
                 pad,
             };
-            let x = q(&rand_vec((cin * h * w) as usize + 5, 120 + i as u64), p);
+            let off = 4 + i % 2;
+            let x = q(&rand_vec((cin * h * w) as usize + off, 120 + i as u64), p);
             let wt = q(&rand_vec((cin * cout * k * k) as usize, 130 + i as u64), p);
             let b = q(&rand_vec(cout as usize, 140 + i as u64), p);
             let act = if relu { Act::Leaky(0.0) } else { Act::None };
@@ -914,19 +930,20 @@ fn texture_convolutions_match_cpu_reference_on_odd_sizes() {
                 p,
                 ops::ConvKind::Transposed,
                 &x,
+                off,
                 None,
                 &wt,
                 Some(&b),
                 s,
                 act,
             );
-            let want = conv_t_ref(&x[5..], &wt, &b, s, relu);
+            let want = conv_t_ref(&x[off..], &wt, &b, s, relu);
             assert_close(&got[3..], &want, tol, &format!("conv_t_tex case {i} {p:?}"));
         }
     }
 }
 
-/// Packs `x[5..]` (normalised by `norm` when given) into a texture one band taller than
+/// Packs `x[off..]` (normalised by `norm` when given) into a texture one band taller than
 /// needed, checks its padding channels, runs [`ops::conv_tex`] into a buffer at element 3 and
 /// returns the whole buffer.
 #[allow(clippy::too_many_arguments)]
@@ -935,6 +952,7 @@ fn run_conv_tex(
     p: Precision,
     kind: ops::ConvKind,
     x: &[f32],
+    off: usize,
     norm: Option<&[f32]>,
     wt: &[f32],
     bias: Option<&[f32]>,
@@ -951,7 +969,7 @@ fn run_conv_tex(
         ctx,
         View {
             buf: &xb.buffer,
-            base: 5,
+            base: off as u32,
         },
         (s.cin, s.h, s.w),
         nb.as_ref().map(|n| &n.buffer),
@@ -970,8 +988,11 @@ fn run_conv_tex(
                 if c >= s.cin as usize {
                     assert_eq!(v, 0.0, "pack: padding channel {c} at x {xx}, row {r}");
                 } else if norm.is_none() {
-                    let e = 5 + c * (s.h * s.w) as usize + (r % s.h as usize) * s.w as usize + xx;
-                    assert_eq!(v, x[e], "pack: channel {c} at x {xx}, row {r}");
+                    let e = off + c * (s.h * s.w) as usize + (r % s.h as usize) * s.w as usize + xx;
+                    assert_eq!(
+                        v, x[e],
+                        "pack: channel {c} at x {xx}, row {r}, {s:?}, offset {off}"
+                    );
                 }
             }
         }

@@ -229,7 +229,7 @@ pub(crate) fn pack_tex(
         w,
         in_base: src.base,
         use_norm: u32::from(norm.is_some()),
-        _pad0: 0,
+        vec4_ok: u32::from(w % 4 == 0 && src.base % 4 == 0),
         _pad1: 0,
         _pad2: 0,
     };
@@ -247,7 +247,7 @@ pub(crate) fn pack_tex(
             Res::Buf(norm.unwrap_or(ctx.dummy())),
             Res::Tex(&dst.view),
         ],
-        [groups_1d(w, 8)?, groups_1d(rows, 8)?, 1],
+        [groups_1d(w, 32)?, groups_1d(rows, 8)?, 1],
     )
 }
 
@@ -418,8 +418,8 @@ pub(crate) fn ha_gate(
         res_base: res.map_or(0, |v| v.base),
         out_base: dst.base,
         slope,
+        vec4_ok: u32::from(hw % 4 == 0 && res.is_none_or(|v| v.base % 4 == 0) && dst.base % 4 == 0),
         _pad0: 0,
-        _pad1: 0,
     };
     launch(
         ctx,
@@ -438,7 +438,7 @@ pub(crate) fn ha_gate(
             Res::Buf(res.map_or(ctx.dummy(), |v| v.buf)),
             Res::Buf(dst.buf),
         ],
-        linear_groups(u64::from(channels) * u64::from(hw), 256)?,
+        linear_groups((u64::from(channels) * u64::from(hw)).div_ceil(4), 256)?,
     )
 }
 

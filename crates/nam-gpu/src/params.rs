@@ -130,8 +130,9 @@ uniforms! {
         out_base: u32,
         /// LeakyReLU negative slope of the feature branch.
         slope: f32,
+        /// 1: vec4 loads and stores (`hw` and both offsets multiples of 4).
+        vec4_ok: u32,
         _pad0: u32,
-        _pad1: u32,
     }
 
     /// `shaders/elementwise.wgsl`: element-wise entry points.
@@ -214,7 +215,8 @@ uniforms! {
         in_base: u32,
         /// 1: apply the per-channel norm affine on the way.
         use_norm: u32,
-        _pad0: u32,
+        /// 1: 4-pixel vector loads (`w` and `in_base` multiples of 4).
+        vec4_ok: u32,
         _pad1: u32,
         _pad2: u32,
     }

@@ -31,6 +31,9 @@ pub struct Args {
     /// CPU.
     #[arg(long)]
     pub gpu: bool,
+    /// Only the GPU table (implies `--gpu`; its CPU rows, the same paths on the CPU, stay).
+    #[arg(long)]
+    pub gpu_only: bool,
 }
 
 /// Side of the sgemm roofline product (n × n × n).
@@ -64,6 +67,9 @@ pub fn run(args: &Args) -> Result<()> {
         })
         .collect();
     let map = cpu.unet.estimate(&input, s, s)?;
+    if args.gpu_only {
+        return gpu_rows(&model, map, &input, rep);
+    }
     let prep = net.prepare(&map)?;
 
     let sn = SGEMM_N;

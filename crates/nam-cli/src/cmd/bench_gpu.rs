@@ -39,6 +39,7 @@ pub fn run(model: &NeuralModel, map: ParamMap, input: &[f32], rep: usize) -> Res
         model.weights(),
         nam::nam_gpu::Precision::F32,
     )?;
+    let peak = fma_peak(unet.context())?;
     let s = map.height;
     let n = s * map.width;
     let estimate_flops = 2.0 * model.config().estimate_macs(s, s) as f64;
@@ -91,7 +92,18 @@ pub fn run(model: &NeuralModel, map: ParamMap, input: &[f32], rep: usize) -> Res
         ),
     ];
     let rows = measure(cases, rep)?;
-    Ok(table(&rows, &gpu.info, s, rep))
+    Ok(table(&rows, &gpu.info, peak, s, rep))
+}
+
+/// GFLOP/s of `shaders/fma_peak.wgsl` on the device: a small probe first, then one sized to
+/// run ~0.1 s (llvmpipe and a data-centre GPU differ by ~1000x).
+fn fma_peak(ctx: &nam::nam_gpu::GpuContext) -> Result<f64> {
+    use nam::nam_gpu::probe::fma_peak_gflops;
+    const ITERS: u32 = 1024;
+    let small = fma_peak_gflops(ctx, 64, ITERS, 1)?;
+    let flops_per_group = 256.0 * f64::from(ITERS) * 64.0;
+    let groups = (0.1 * small * 1e9 / flops_per_group).clamp(64.0, 65_535.0) as u32;
+    Ok(fma_peak_gflops(ctx, groups, ITERS, 3)?)
 }
 
 /// Relighting `material` under `scene` with `model`'s backend, as a timed case.
@@ -116,11 +128,11 @@ fn case<'a>(
 
 /// Rows 0–1 are GPU relights, 2–3 the same paths on the CPU, 4–5 the estimate on GPU and CPU;
 /// FLOPs count the render network with l0·l1 folded, as the CPU table does.
-fn table(rows: &[Row], info: &nam::wgpu::AdapterInfo, s: usize, rep: usize) -> String {
+fn table(rows: &[Row], info: &nam::wgpu::AdapterInfo, peak: f64, s: usize, rep: usize) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "GPU: {} ({:?}, {:?}), f32, size {s}², best of {rep} interleaved rounds after a warm-up round\n",
+        "GPU: {} ({:?}, {:?}), f32, size {s}², best of {rep} interleaved rounds after a warm-up round; FMA peak (shaders/fma_peak.wgsl) {peak:.1} GFLOP/s\n",
         info.name, info.backend, info.device_type
     );
     let _ = writeln!(

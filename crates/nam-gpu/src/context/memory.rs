@@ -54,8 +54,9 @@ impl GpuContext {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
-            // Copies and mapping work in 4-byte units; f16 buffers of odd length round up.
-            size: size.max(4).next_multiple_of(4),
+            // Copies and mapping work in 4-byte units, and kernels bind some buffers as
+            // arrays of vec4: sizes round up to 16 bytes.
+            size: size.max(16).next_multiple_of(16),
             usage,
             mapped_at_creation: false,
         });
