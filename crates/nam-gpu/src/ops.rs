@@ -229,7 +229,7 @@ pub(crate) fn pack_tex(
         w,
         in_base: src.base,
         use_norm: u32::from(norm.is_some()),
-        vec4_ok: u32::from(w % 4 == 0 && src.base % 4 == 0),
+        vec4_ok: u32::from(w.is_multiple_of(4) && src.base.is_multiple_of(4)),
         _pad1: 0,
         _pad2: 0,
     };
@@ -418,7 +418,11 @@ pub(crate) fn ha_gate(
         res_base: res.map_or(0, |v| v.base),
         out_base: dst.base,
         slope,
-        vec4_ok: u32::from(hw % 4 == 0 && res.is_none_or(|v| v.base % 4 == 0) && dst.base % 4 == 0),
+        vec4_ok: u32::from(
+            hw.is_multiple_of(4)
+                && res.is_none_or(|v| v.base.is_multiple_of(4))
+                && dst.base.is_multiple_of(4),
+        ),
         _pad0: 0,
     };
     launch(
