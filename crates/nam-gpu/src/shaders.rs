@@ -26,6 +26,9 @@ impl Precision {
     }
 }
 
+/// The multiply-add snippet appended to `matmul_tex.wgsl` and `conv_tex.wgsl`.
+pub(crate) const SUBGROUP_MAC: &str = "subgroup_mac.wgsl";
+
 /// The line every precision-generic shader starts its declarations with.
 pub const STORAGE_ALIAS_F32: &str = "alias st = f32;";
 
@@ -109,7 +112,8 @@ impl Family {
         }
     }
 
-    /// The f32 source as stored in `shaders/`.
+    /// The f32 source as stored in `shaders/`; the two subgroup-broadcast families get
+    /// `subgroup_mac.wgsl` (their shared multiply-add) appended.
     pub fn base_source(self) -> &'static str {
         match self {
             Family::Conv2d => include_str!("../../../shaders/conv2d.wgsl"),
@@ -119,9 +123,15 @@ impl Family {
             Family::Elementwise => include_str!("../../../shaders/elementwise.wgsl"),
             Family::PosEnc => include_str!("../../../shaders/pos_enc.wgsl"),
             Family::Matmul => include_str!("../../../shaders/matmul.wgsl"),
-            Family::MatmulTex => include_str!("../../../shaders/matmul_tex.wgsl"),
+            Family::MatmulTex => concat!(
+                include_str!("../../../shaders/matmul_tex.wgsl"),
+                include_str!("../../../shaders/subgroup_mac.wgsl")
+            ),
             Family::TexPack => include_str!("../../../shaders/tex_pack.wgsl"),
-            Family::ConvTex => include_str!("../../../shaders/conv_tex.wgsl"),
+            Family::ConvTex => concat!(
+                include_str!("../../../shaders/conv_tex.wgsl"),
+                include_str!("../../../shaders/subgroup_mac.wgsl")
+            ),
             Family::FmaPeak => include_str!("../../../shaders/fma_peak.wgsl"),
             Family::Smoke => include_str!("../../../shaders/smoke.wgsl"),
         }
