@@ -319,8 +319,8 @@ mod tests {
                 .find(|f| f.file_name() == name)
                 .unwrap_or_else(|| panic!("{file} is the file of no shader family"))
                 .base_source();
-            let module = naga::front::wgsl::parse_str(&src)
-                .unwrap_or_else(|e| panic!("{file}: {}", e.emit_to_string(&src)));
+            let module = naga::front::wgsl::parse_str(src)
+                .unwrap_or_else(|e| panic!("{file}: {}", e.emit_to_string(src)));
             for (_, var) in module.global_variables.iter() {
                 if var.space != naga::AddressSpace::Uniform {
                     continue;

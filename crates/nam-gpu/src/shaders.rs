@@ -26,7 +26,9 @@ impl Precision {
     }
 }
 
-/// The multiply-add snippet appended to `matmul_tex.wgsl` and `conv_tex.wgsl`.
+/// The multiply-add snippet appended to `matmul_tex.wgsl` and `conv_tex.wgsl` (see
+/// [`Family::base_source`]; named for the tests that walk `shaders/`).
+#[cfg(test)]
 pub(crate) const SUBGROUP_MAC: &str = "subgroup_mac.wgsl";
 
 /// The line every precision-generic shader starts its declarations with.
