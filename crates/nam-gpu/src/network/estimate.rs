@@ -34,7 +34,6 @@ struct Scratch {
 
 /// Channel-block textures the texture convolutions read (`shaders/tex_pack.wgsl`), shared by
 /// all blocks: `x` a block's input, `n` its InstanceNorm, `t` an intermediate.
-#[derive(Clone)]
 struct TexScratch {
     x: DeviceTexture,
     n: DeviceTexture,
@@ -149,7 +148,9 @@ impl<'v> UnetBuilder<'_> {
         Ok(())
     }
 
-    /// HA-Conv + folded BN + tail into `dst` ([cout, h/s, w/s]).
+    /// HA-Conv + folded BN + tail into `dst` ([cout, h/s, w/s]). Returns `x` as the
+    /// convolution input it made (packed into the `x` texture on the texture path, which
+    /// nothing in the HA-Conv overwrites), for the block's shortcut to reuse.
     #[allow(clippy::too_many_arguments)]
     fn ha(
         &mut self,
@@ -161,7 +162,7 @@ impl<'v> UnetBuilder<'_> {
         stride: u32,
         tail: GateTail<'_>,
         dst: View<'_>,
-    ) -> Result<()> {
+    ) -> Result<Operand<'v>> {
         let shape = ConvShape {
             cin,
             h,
@@ -225,7 +226,7 @@ impl<'v> UnetBuilder<'_> {
             to_u32(plane, "plane")?,
             self.slope,
         )?);
-        Ok(())
+        Ok(xin)
     }
 
     /// BasicBlock: `relu(bn2(ha2(relu(bn1(ha1(x))))) + id)` into `dst`.
@@ -240,7 +241,7 @@ impl<'v> UnetBuilder<'_> {
         let (ho, wo) = (h / b.stride, w / b.stride);
         let y = self.s.y.buffer.clone();
         let d = self.s.d.buffer.clone();
-        self.ha(
+        let xin = self.ha(
             &b.ha1,
             &b.bn1,
             x,
@@ -261,8 +262,6 @@ impl<'v> UnetBuilder<'_> {
                     stride: b.stride,
                     pad: 0,
                 };
-                // Packed again on the texture path: each block's packs are its own.
-                let xin = self.operand(x, (b.cin, h, w), None, Slot::X)?;
                 self.conv(
                     ConvKind::Direct,
                     &xin,
@@ -285,7 +284,8 @@ impl<'v> UnetBuilder<'_> {
             1,
             GateTail::Residual(res),
             dst,
-        )
+        )?;
+        Ok(())
     }
 
     /// ReverseBlock: `relu(conv(relu(up4(x))) + up2(x))` into `dst` ([cout, 2h, 2w]).
