@@ -317,6 +317,12 @@ def save_checkpoint(path: Path, model: NamModel, opt, state: dict) -> None:
 def parse_args(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", default="small", choices=sorted(CONFIGS))
+    ap.add_argument(
+        "--width",
+        type=int,
+        default=None,
+        help="U-Net width C instead of the config's (e.g. 12, a file widened by train_py.widen)",
+    )
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--minutes", type=float, default=None, help="wall-clock budget; the schedule follows it")
     ap.add_argument(
@@ -461,6 +467,8 @@ def train(args) -> dict:
 
     torch.manual_seed(args.seed)
     config = dataclasses.replace(CONFIGS[args.config], input_skip=args.input_skip)
+    if args.width:
+        config = dataclasses.replace(config, width=args.width)
     model = NamModel(config).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     #: ``frozen_bn``: BatchNorms in eval mode throughout (a run started from a folded model file).
