@@ -4,6 +4,7 @@
 
 use rayon::prelude::*;
 
+use super::direct;
 use crate::sgemm::{Mat, sgemm, sgemm_into_transposed};
 
 /// Output pixels per GEMM band: enough rows for the GEMM kernel, small enough
@@ -95,8 +96,19 @@ impl PackedConv {
     }
 
     /// Output rows `rows` of [`Self::run_with`] (an `Hwc` of `rows.len()` rows): the same
-    /// values, computed without the rest of the output.
+    /// values, computed without the rest of the output. A direct convolution where the CPU
+    /// has AVX-512F (faster at every width here, 4 outputs included: docs/perf/unet_cpu.md),
+    /// else im2col + GEMM.
     pub(super) fn run_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
+        if direct::available() {
+            direct::run_rows(self, x, wt, rows)
+        } else {
+            self.im2col_rows(x, wt, rows)
+        }
+    }
+
+    /// [`Self::run_rows`] as im2col over bands of output rows + GEMM.
+    pub(super) fn im2col_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
         debug_assert!(self.cin <= x.c);
         debug_assert_eq!(wt.len(), self.wt.len());
         let whole = x.c == self.cin;

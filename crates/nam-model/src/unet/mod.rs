@@ -14,6 +14,7 @@ use crate::maps::ParamMap;
 
 mod blocks;
 mod conv;
+mod direct;
 
 use blocks::{Basic, Reverse};
 use conv::{Hwc, PackedConv, concat};
@@ -142,10 +143,21 @@ impl UNet {
         let band = pixels.min(blocks::HA_BAND_PIXELS + 2 * wp);
         let decoder = pixels * (9 * c + 2 * i) + band * 8 * c;
         let head = pixels * (self.params + head_in + i);
-        // Widest im2col row: the 7×7 stem and head, or a 3×3 conv over 12·C channels (dec2).
-        let row = (49 * head_in).max(49 * i).max(9 * 12 * c);
-        let im2col = rayon::current_num_threads() * conv::BAND_PIXELS.max(wp) * row;
-        4 * (decoder.max(head) + im2col) as u64
+        // Per rayon thread, the conv scratch: the direct path's padded input band (the widest
+        // input of a level: the 7×7 head or stem, dec4's 3·C at full size, then 2·C, 4·C and
+        // 8·C channels at 1/2, 1/4 and 1/8 of the side), else one im2col band, whose widest row
+        // is the 7×7 stem's or head's, or a 3×3 conv's over 12·C channels (dec2).
+        let scratch = if direct::available() {
+            [(wp, 7, head_in.max(i)), (wp, 3, 3 * c), (wp / 2, 3, 2 * c)]
+                .into_iter()
+                .chain([(wp / 4, 3, 4 * c), (wp / 8, 3, 8 * c)])
+                .map(|(w, k, ch)| direct::scratch_floats(w, k, ch))
+                .max()
+                .unwrap_or(0)
+        } else {
+            conv::BAND_PIXELS.max(wp) * (49 * head_in).max(49 * i).max(9 * 12 * c)
+        };
+        4 * (decoder.max(head) + rayon::current_num_threads() * scratch) as u64
     }
 
     /// Runs `M_est` on the network input (CHW, `in_channels × height × width`,
