@@ -97,7 +97,7 @@ impl PackedConv {
 
     /// Output rows `rows` of [`Self::run_with`] (an `Hwc` of `rows.len()` rows): the same
     /// values, computed without the rest of the output. A direct convolution where the CPU
-    /// has AVX-512F (faster at every width here, 4 outputs included: docs/perf/unet_cpu.md),
+    /// has AVX-512F/VL (faster at every width here, 4 outputs included: docs/perf/unet_cpu.md),
     /// else im2col + GEMM.
     pub(super) fn run_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
         if direct::available() {
