@@ -7,7 +7,7 @@
 use crate::error::{EvalError, Result};
 use crate::heldout::Material;
 use nam::geometry::{CAPTURE_DISTANCE, Light, View, capture_half_z, pixel_position};
-use nam::{DVec3, NeuralMaterial, NeuralModel, Photo, Scene, relight};
+use nam::{CpuPrecision, DVec3, NeuralMaterial, NeuralModel, Photo, Scene, relight};
 use nam_ggx::{LightView, SvbrdfMaps, render};
 use nam_model::reference::{self, Accumulate};
 use nam_model::{ParamMap, RenderNet, Source};
@@ -228,7 +228,7 @@ fn attach_gpu(_: &mut NeuralModel, _: Precision, _: Option<&GpuDevice>) -> Resul
 pub struct Prepared {
     spec: MethodSpec,
     model: Option<NeuralModel>,
-    /// The bf16 or int8 render network (the facade relights with the f32 one).
+    /// The bf16 or int8 render network (also the facade's, which estimates in the same precision).
     reduced: Option<RenderNet>,
     width: usize,
 }
@@ -264,11 +264,15 @@ impl Prepared {
         let mut reduced = None;
         match (cfg.backend, cfg.precision) {
             (Backend::CpuReference | Backend::CpuFast, Precision::F32) => {}
+            // The facade's CPU estimate follows the precision (`set_cpu_precision`): the row's
+            // error is the reduced estimate's and relight's together.
             (Backend::CpuFast, Precision::Bf16) => {
-                reduced = Some(model.cpu().render.clone().with_bf16()?);
+                model.set_cpu_precision(CpuPrecision::Bf16)?;
+                reduced = Some(model.cpu().render.clone());
             }
             (Backend::CpuFast, Precision::Int8) => {
-                reduced = Some(model.cpu().render.clone().with_int8()?);
+                model.set_cpu_precision(CpuPrecision::Int8)?;
+                reduced = Some(model.cpu().render.clone());
             }
             (Backend::Gpu, Precision::F32 | Precision::F16) => {
                 attach_gpu(&mut model, cfg.precision, gpu)?;

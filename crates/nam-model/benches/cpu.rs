@@ -68,6 +68,12 @@ fn benches(c: &mut Criterion) {
         g.bench_function(format!("estimate_256_c{width}"), |bch| {
             bch.iter(|| unet.estimate(black_box(&input), 256, 256))
         });
+        if nam_model::bf16_supported() {
+            let bf = unet.clone().with_bf16().expect("supported");
+            g.bench_function(format!("estimate_bf16_256_c{width}"), |bch| {
+                bch.iter(|| bf.estimate(black_box(&input), 256, 256))
+            });
+        }
     }
     g.finish();
     // Folded l0·l1: DESIGN §4's 634,470 unfolded minus 128·128.

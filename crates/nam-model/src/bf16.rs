@@ -42,7 +42,7 @@ pub fn bf16_kernel() -> &'static str {
 
 /// f32 → bf16 bits, round to nearest even (finite inputs; NaN is never passed).
 #[inline(always)]
-fn to_bf16(v: f32) -> u32 {
+pub(crate) fn to_bf16(v: f32) -> u32 {
     let b = v.to_bits();
     (b.wrapping_add(0x7FFF + ((b >> 16) & 1))) >> 16
 }

@@ -52,7 +52,7 @@ pub use nam_ggx::geometry;
 pub use nam_weights::radiance_from_log;
 pub use prepared::{PreparedMaterial, Roi};
 pub use render::{DEFAULT_TILE, Precision, ProbeTime, RenderNet, interpolation_step};
-pub use unet::{MAX_SIDE, UNet};
+pub use unet::{BF16_PARAM_TOL, MAX_SIDE, UNet};
 
 use nam_weights::Weights;
 

@@ -233,6 +233,28 @@ fn default_model_matches_torch_golden() {
     check_render(&gold);
 }
 
+#[test]
+fn bf16_estimate_of_the_default_model_stays_near_torch() {
+    if !nam_model::bf16_supported() {
+        println!("skipping: no AVX-512 BF16");
+        return;
+    }
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
+    let weights = Weights::from_file(models.join("default.safetensors")).unwrap();
+    let g = TensorFile::from_file(fixtures().join("net_default_golden.safetensors")).unwrap();
+    let shape = g.tensors()["photo"].shape().to_vec();
+    let (h, w) = (shape[0], shape[1]);
+    let pc = weights.config().param_channels;
+    let input = g.get("input", &[4, h, w]).unwrap();
+    let want = chw_to_hwc(g.get("params", &[pc, h, w]).unwrap(), pc, h, w);
+    let unet = UNet::new(&weights).unwrap().with_bf16().unwrap();
+    assert!(unet.is_bf16());
+    let got = unet.estimate(input, h, w).unwrap();
+    let e = max_rel_err(&got.data, &want);
+    println!("unet bf16 vs torch: max rel err {e:e}");
+    assert!(e < nam_model::BF16_PARAM_TOL, "bf16 U-Net vs torch: {e:e}");
+}
+
 /// Fast vs reference(f64) on random C=8 weights: the fast path's f32 GEMMs vs
 /// f64 sums, relative to magnitude.
 const FAST_VS_REFERENCE_TOL: f32 = 1e-4;

@@ -3,7 +3,7 @@
 use crate::error::{NamError, Result};
 use crate::material::NeuralMaterial;
 use crate::photo::Photo;
-use nam_model::{Model, Precision as CpuPrecision, ProbeTime};
+use nam_model::{Model, Precision as CpuPrecision, ProbeTime, UNet};
 use nam_weights::{ModelConfig, Weights};
 use sha2::{Digest, Sha256};
 use std::path::Path;
@@ -157,18 +157,24 @@ impl NeuralModel {
     /// Switches the products of the CPU renderer (ND_enc and the render layers after the first;
     /// sums stay f32, or exact i32 for int8) to `precision`: bf16 (≈2× faster where the CPU has
     /// AVX-512 BF16 or AMX; log-space differences of order 1e-3), int8 (AVX-512 VNNI) or back to
-    /// f32. Errors, leaving the model unchanged, when the CPU lacks the instructions; the
-    /// report (`nam-cli report`) gives each precision's error.
+    /// f32. The CPU estimate follows ([`unet_for`]): bf16 products in its convolutions for bf16,
+    /// f32 for f32 and int8 (the U-Net has no int8 path). Errors,
+    /// leaving the model unchanged, when the CPU lacks the instructions; the report
+    /// (`nam-cli report`) gives each precision's error, estimate included.
     pub fn set_cpu_precision(&mut self, precision: CpuPrecision) -> Result<()> {
-        self.cpu.render = self.cpu.render.clone().with_precision(precision)?;
+        let render = self.cpu.render.clone().with_precision(precision)?;
+        self.cpu.unet = unet_for(self.cpu.unet.clone(), precision)?;
+        self.cpu.render = render;
         Ok(())
     }
 
-    /// Switches the CPU renderer to the fastest precision this CPU runs, chosen by timing one
-    /// tile of the general path in each ([`RenderNet::fastest`](nam_model::RenderNet::fastest),
+    /// Switches the CPU renderer to the fastest precision this CPU runs (and the estimate to the
+    /// faster of f32 and bf16, timed on a small photo), chosen by timing one tile of the general
+    /// path in each ([`RenderNet::fastest`](nam_model::RenderNet::fastest),
     /// a few milliseconds); returns the probe times. f32 stays when it is the fastest.
     pub fn use_fastest_cpu_precision(&mut self) -> Result<Vec<ProbeTime>> {
         let (net, times) = self.cpu.render.clone().fastest()?;
+        self.cpu.unet = fastest_unet(self.cpu.unet.clone(), self.config().in_channels)?;
         self.cpu.render = net;
         Ok(times)
     }
@@ -303,4 +309,39 @@ impl NeuralMaterial {
 /// The first 12 hex digits of a fingerprint, enough to tell models apart in a message.
 fn short(fp: &str) -> &str {
     &fp[..fp.len().min(12)]
+}
+
+/// The CPU U-Net for the CPU products `precision`: bf16 for bf16, f32 otherwise (the U-Net has
+/// no int8 path).
+fn unet_for(unet: UNet, precision: CpuPrecision) -> Result<UNet> {
+    Ok(match precision {
+        CpuPrecision::Bf16 => unet.with_bf16()?,
+        CpuPrecision::F32 | CpuPrecision::Int8 => unet.with_f32(),
+    })
+}
+
+/// Side of the synthetic photo [`fastest_unet`] times each precision on.
+const UNET_PROBE_SIDE: usize = 64;
+
+/// The faster of the f32 and (where the CPU has AVX-512 BF16) bf16 U-Net, by timing one
+/// [`UNET_PROBE_SIDE`]² estimate of each after a warm-up run: `vdpbf16ps` is fast on AMD Zen 4
+/// and slower than f32 on some Intel Xeons, so this is measured, not assumed.
+fn fastest_unet(unet: UNet, in_channels: usize) -> Result<UNet> {
+    let f32_net = unet.with_f32();
+    if !nam_model::bf16_supported() {
+        return Ok(f32_net);
+    }
+    let bf16_net = f32_net.clone().with_bf16()?;
+    let n = UNET_PROBE_SIDE;
+    let probe: Vec<f32> = (0..in_channels * n * n)
+        .map(|i| (i % 97) as f32 / 97.0)
+        .collect();
+    let time = |net: &UNet| -> Result<f64> {
+        net.estimate(&probe, n, n)?;
+        let started = std::time::Instant::now();
+        net.estimate(&probe, n, n)?;
+        Ok(started.elapsed().as_secs_f64())
+    };
+    let (t32, t16) = (time(&f32_net)?, time(&bf16_net)?);
+    Ok(if t16 < t32 { bf16_net } else { f32_net })
 }

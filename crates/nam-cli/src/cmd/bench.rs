@@ -111,6 +111,22 @@ pub fn run(args: &Args) -> Result<()> {
         None
     };
 
+    // The U-Net with bf16 products (`UNet::with_bf16`), and how far its param map lies from
+    // the f32 one: the largest |a − b| / (1 + |b|).
+    let unet_bf16 = if nam_model::bf16_supported() {
+        let u = cpu.unet.clone().with_bf16()?;
+        let got = u.estimate(&input, s, s)?;
+        let err = got
+            .data
+            .iter()
+            .zip(&map.data)
+            .map(|(a, b)| (a - b).abs() / (1.0 + b.abs()))
+            .fold(0.0f32, f32::max);
+        Some((u, err))
+    } else {
+        None
+    };
+
     // 2 flops per multiply-add, per run.
     let fl = |macs_per_item: usize, items: usize| 2.0 * macs_per_item as f64 * items as f64;
     let m = |prepared, constant| net.macs_per_output(prepared, constant);
@@ -131,7 +147,7 @@ pub fn run(args: &Args) -> Result<()> {
             }),
         ),
         (
-            format!("general point relight {s}²"),
+            general_row(s),
             n,
             fl(m(false, false), n),
             Box::new(|| {
@@ -264,6 +280,20 @@ pub fn run(args: &Args) -> Result<()> {
             ),
         );
     }
+    if let Some((u, err)) = &unet_bf16 {
+        cases.insert(
+            2,
+            (
+                format!("estimate {s}², bf16 (AVX-512 BF16; params within {err:.1e} of f32)"),
+                0,
+                2.0 * model.config().estimate_macs(s, s) as f64,
+                Box::new(|| {
+                    u.estimate(&input, s, s)?;
+                    Ok(())
+                }),
+            ),
+        );
+    }
     let rows = measure(cases, rep)?;
     if !out.iter().all(|v| v.is_finite()) {
         bail!("query batch gave non-finite output");
@@ -302,8 +332,12 @@ fn threads() -> usize {
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from))
 }
 
-/// The Markdown report. Row 2 (index 2) is the general point relight that
-/// speedups are relative to, per pixel/query.
+/// Name of the general point relight row, which speedups are relative to.
+fn general_row(s: usize) -> String {
+    format!("general point relight {s}²")
+}
+
+/// The Markdown report; speedups are per pixel/query, relative to [`general_row`].
 fn table(rows: &[Row], sg_gflops: f64, threads: usize, s: usize, rep: usize) -> String {
     let mut t = String::new();
     let _ = writeln!(
@@ -315,7 +349,10 @@ fn table(rows: &[Row], sg_gflops: f64, threads: usize, s: usize, rep: usize) -> 
         "| path | pixels/queries | ms | GFLOP/s | × general (per item) | % of sgemm roofline |"
     );
     let _ = writeln!(t, "|---|---:|---:|---:|---:|---:|");
-    let general = rows.get(2).map(|g| g.ms / g.items.max(1) as f64);
+    let general = rows
+        .iter()
+        .find(|r| r.name == general_row(s))
+        .map(|g| g.ms / g.items.max(1) as f64);
     for r in rows {
         let gf = r.flops / r.ms / 1e6;
         let items = if r.items == 0 {

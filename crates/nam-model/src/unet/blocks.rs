@@ -67,6 +67,13 @@ impl Ha {
         })
     }
 
+    /// Its convolutions, for [`super::UNet::with_bf16`].
+    pub(super) fn convs_mut(&mut self) -> Vec<&mut PackedConv> {
+        let mut v = vec![&mut self.main, &mut self.inc1b];
+        v.extend(self.inc1a.as_mut());
+        v
+    }
+
     /// Returns (HA output, down-conv output without its bias if fused).
     /// `post(p, out)` finishes output pixel `p` in place (the block's
     /// BatchNorm, residual and ReLU), while the pixel is still in cache.
@@ -288,6 +295,13 @@ impl Basic {
             bn2: bn("bn2")?,
             down_bias: down.map(|d| d.1),
         })
+    }
+
+    /// Its convolutions, for [`super::UNet::with_bf16`].
+    pub(super) fn convs_mut(&mut self) -> Vec<&mut PackedConv> {
+        let mut v = self.ha1.convs_mut();
+        v.extend(self.ha2.convs_mut());
+        v
     }
 
     pub(super) fn run(&self, x: &Hwc, eps: f32, slope: f32) -> Hwc {

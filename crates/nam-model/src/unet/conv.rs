@@ -37,6 +37,8 @@ pub(super) struct PackedConv {
     pub(super) cin: usize,
     pub(super) cout: usize,
     pub(super) wt: Vec<f32>,
+    /// bf16 products, f32 sums ([`super::UNet::with_bf16`]; direct convolution only).
+    pub(super) bf16: bool,
 }
 
 impl PackedConv {
@@ -73,6 +75,7 @@ impl PackedConv {
             cin,
             cout,
             wt,
+            bf16: false,
         }
     }
 
@@ -101,7 +104,7 @@ impl PackedConv {
     /// else im2col + GEMM.
     pub(super) fn run_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
         if direct::available() {
-            direct::run_rows(self, x, wt, rows)
+            direct::run_rows(self, x, wt, rows, self.bf16)
         } else {
             self.im2col_rows(x, wt, rows)
         }

@@ -3,7 +3,10 @@
 //! reads once into a replicate-padded buffer; a register tile of `MR` output pixels × `NB`
 //! 16-lane blocks of output channels then sums every tap and input channel before it is
 //! stored (weights `[tap][ci][cout padded to 16]`, repacked per call: `run_with` rescales them).
-//! The same sums as the im2col path in another order: `DIRECT_TOL` in the tests.
+//! The same sums as the im2col path in another order: `DIRECT_TOL` in the tests. With bf16
+//! operands ([`UNet::with_bf16`](super::UNet::with_bf16), CPUs with AVX-512 BF16) the input
+//! band and the weights are rounded to bf16 pairs of input channels and each `vdpbf16ps` sums two
+//! products into f32: twice the products per instruction.
 #![allow(unsafe_code)]
 
 use std::ops::Range;
@@ -11,6 +14,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use super::conv::{Hwc, PackedConv};
+use crate::bf16::to_bf16;
 
 /// Lanes of one AVX-512 register of f32.
 const LANES: usize = 16;
@@ -36,6 +40,11 @@ pub(super) fn available() -> bool {
     }
 }
 
+/// True when this CPU runs the direct convolution on bf16 operands (AVX-512 BF16 as well).
+pub(super) fn available_bf16() -> bool {
+    available() && crate::bf16::bf16_supported()
+}
+
 /// Output rows per band (per rayon task) for `rows` output rows of a stride-`s` conv over an
 /// input `w_in` wide: about [`BAND_PIXELS`] input pixels, and at least four bands per thread
 /// where there are enough rows.
@@ -50,15 +59,39 @@ pub(super) fn scratch_floats(w_in: usize, k: usize, cin: usize) -> usize {
 }
 
 /// Output rows `rows` of `conv` applied to `x` with weights `wt` (packed as `conv.wt`), the
-/// values of [`PackedConv::run_rows`]. Only where [`available`].
-pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> Hwc {
-    assert!(available(), "direct convolution without AVX-512F/VL");
+/// values of [`PackedConv::run_rows`], with f32 products (`bf16`: bf16 ones, f32 sums). Only
+/// where [`available`] (`bf16`: [`available_bf16`]).
+pub(super) fn run_rows(
+    conv: &PackedConv,
+    x: &Hwc,
+    wt: &[f32],
+    rows: Range<usize>,
+    bf16: bool,
+) -> Hwc {
+    if bf16 {
+        assert!(
+            available_bf16(),
+            "bf16 direct convolution without AVX-512 BF16"
+        );
+        run_rows_with::<Bf16Pair>(conv, x, wt, rows)
+    } else {
+        assert!(available(), "direct convolution without AVX-512F/VL");
+        run_rows_with::<f32>(conv, x, wt, rows)
+    }
+}
+
+fn run_rows_with<E: Operand>(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> Hwc {
     assert!(conv.cin <= x.c && wt.len() == conv.k * conv.k * conv.cin * conv.cout);
     let (ho, wo) = conv.out_size(x);
     assert!(rows.end <= ho);
     let (k, s, cin, cout) = (conv.k, conv.stride, conv.cin, conv.cout);
+    // Operand elements per padded-input pixel.
+    let ce = E::per_pixel(cin);
     let groups = column_groups(cout);
-    let packed: Vec<Vec<f32>> = groups.iter().map(|g| pack(wt, cout, g.clone())).collect();
+    let packed: Vec<Vec<E>> = groups
+        .iter()
+        .map(|g| E::pack(wt, cin, cout, g.clone()))
+        .collect();
     // Padded input columns: output column ox, tap kx reads column ox·s + kx.
     let wp = (wo - 1) * s + k;
     let band = band_rows(x.w, s, rows.len());
@@ -66,36 +99,35 @@ pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize
     let first = rows.start;
     out.par_chunks_mut(band * wo * cout)
         .enumerate()
-        .for_each_init(Vec::new, |pad: &mut Vec<f32>, (b, dst)| {
+        .for_each_init(Vec::new, |pad: &mut Vec<E>, (b, dst)| {
             let oy0 = first + b * band;
             let n_rows = dst.len() / (wo * cout);
             let in_rows = (n_rows - 1) * s + k;
-            pad.resize(in_rows * wp * cin, 0.0);
+            pad.resize(in_rows * wp * ce, E::default());
             for py in 0..in_rows {
                 let iy = (oy0 * s + py).saturating_sub(conv.pad).min(x.h - 1);
                 for px in 0..wp {
                     let ix = px.saturating_sub(conv.pad).min(x.w - 1);
                     let src = (iy * x.w + ix) * x.c;
-                    let d = (py * wp + px) * cin;
-                    pad[d..d + cin].copy_from_slice(&x.d[src..src + cin]);
+                    let d = (py * wp + px) * ce;
+                    E::put(&mut pad[d..d + ce], &x.d[src..src + cin]);
                 }
             }
-            let taps: Vec<usize> = (0..k * k).map(|t| ((t / k) * wp + t % k) * cin).collect();
+            let taps: Vec<usize> = (0..k * k).map(|t| ((t / k) * wp + t % k) * ce).collect();
             for r in 0..n_rows {
-                let a_row = r * s * wp * cin;
+                let a_row = r * s * wp * ce;
                 let d_row = r * wo * cout;
                 for (g, w) in groups.iter().zip(&packed) {
                     let tile = Tile {
                         taps: &taps,
-                        cin,
-                        px_step: s * cin,
+                        ce,
+                        px_step: s * ce,
                         w,
                         cols: g.clone(),
                         cout,
                     };
-                    // SAFETY: `available()` was asserted; `tile.run` reads `pad` at
-                    // a_row + (ox·s)·cin + taps + ci < in_rows·wp·cin for ox < wo, and writes
-                    // `dst` row r, columns of `g`, pixels < wo.
+                    // SAFETY: the operand's CPU features were asserted; `tile.row` checks that
+                    // its reads stay inside `pad` and its writes inside this row of `dst`.
                     unsafe { tile.row(&pad[a_row..], &mut dst[d_row..d_row + wo * cout], wo) };
                 }
             }
@@ -143,35 +175,89 @@ fn tile_starts(wo: usize, mr: usize) -> impl Iterator<Item = usize> {
     (0..wo.div_ceil(mr)).map(move |i| (i * mr).min(wo - mr))
 }
 
-/// Columns `cols` of `wt` (`[rows, cout]`) as `[rows, cols padded to whole vectors]`.
-fn pack(wt: &[f32], cout: usize, cols: Range<usize>) -> Vec<f32> {
+/// An operand of the direct convolution's products: f32, or a pair of input channels as bf16.
+trait Operand: Copy + Default + Send + Sync {
+    /// Elements per pixel for `cin` channels.
+    fn per_pixel(cin: usize) -> usize;
+    /// One pixel's channels `src` as elements.
+    fn put(dst: &mut [Self], src: &[f32]);
+    /// Columns `cols` of `wt` (`[taps·cin, cout]`) as `[taps·per_pixel(cin), cols padded to
+    /// whole vectors]`.
+    fn pack(wt: &[f32], cin: usize, cout: usize, cols: Range<usize>) -> Vec<Self>;
+    /// `MR` pixels from `ox` × `NB` vectors of 16 columns ([`Tile::runs`]).
+    ///
+    /// # Safety
+    /// The CPU features of this operand; `ox + MR ≤ wo` for the `wo` of [`Tile::row`]'s checks.
+    unsafe fn tile<const MR: usize, const NB: usize>(
+        t: &Tile<'_, Self>,
+        a: &[Self],
+        dst: &mut [f32],
+        ox: usize,
+    );
+    /// [`Self::tile`] for a group of at most 8 columns, on 8-lane registers (on Zen 4 an 8-lane
+    /// FMA costs half a 16-lane one; elsewhere the same as a half-empty 16-lane one).
+    ///
+    /// # Safety
+    /// As [`Self::tile`].
+    unsafe fn tile8<const MR: usize>(t: &Tile<'_, Self>, a: &[Self], dst: &mut [f32], ox: usize);
+}
+
+/// Two input channels `2p, 2p + 1` as bf16 (round to nearest even), low half first; an odd
+/// channel count pads with 0.
+#[derive(Debug, Clone, Copy, Default)]
+struct Bf16Pair(u32);
+
+impl Bf16Pair {
+    fn of(v: &[f32]) -> Self {
+        Self(to_bf16(v[0]) | v.get(1).map_or(0, |&h| to_bf16(h) << 16))
+    }
+}
+
+/// Columns `cols` of `wt` in [`Operand::pack`]'s layout, `group` rows of `wt` per element.
+fn pack_with<E: Copy + Default>(
+    wt: &[f32],
+    (cin, cout, cols): (usize, usize, Range<usize>),
+    group: usize,
+    element: impl Fn(&[f32]) -> E,
+) -> Vec<E> {
     let ld = cols.len().next_multiple_of(lanes(&cols));
-    let mut p = vec![0.0f32; wt.len() / cout * ld];
-    for (dst, src) in p.chunks_exact_mut(ld).zip(wt.chunks_exact(cout)) {
-        dst[..cols.len()].copy_from_slice(&src[cols.clone()]);
+    let per_tap = cin.div_ceil(group);
+    let taps = wt.len() / (cin * cout);
+    let mut p = vec![E::default(); taps * per_tap * ld];
+    let mut vals = Vec::with_capacity(group);
+    for t in 0..taps {
+        for e in 0..per_tap {
+            let row = &mut p[(t * per_tap + e) * ld..][..cols.len()];
+            for (o, d) in cols.clone().zip(row) {
+                vals.clear();
+                let chans = e * group..((e + 1) * group).min(cin);
+                vals.extend(chans.map(|ci| wt[(t * cin + ci) * cout + o]));
+                *d = element(&vals);
+            }
+        }
     }
     p
 }
 
-/// The register tile of [`Tile::tile`] and [`Tile::tile8`] over one vector width: `MR` pixels ×
-/// `NB` vectors of `L` lanes, summed over every tap and input channel, then stored (the last
-/// vector masked to the group's columns).
+/// The register tile of [`Operand::tile`] over one vector width: `MR` pixels × `NB` vectors of
+/// `L` lanes (f32 accumulators), summed over every tap and operand element, then stored (the last
+/// vector masked to the group's columns). `$load`, `$set1` and `$fma` build the products.
 macro_rules! tile_body {
-    ($t:ident, $a:ident, $dst:ident, $ox:ident, $mr:expr, $nb:expr, $l:expr, $v:ty, $zero:ident,
-     $load:ident, $set1:ident, $fma:ident, $store:expr) => {{
+    ($t:ident, $a:ident, $dst:ident, $ox:ident, $mr:expr, $nb:expr, $l:expr, $w:ty, $zero:expr,
+     $load:expr, $set1:expr, $fma:expr, $store:expr) => {{
         let ld = $t.ld();
-        let mut acc = [[$zero(); $nb]; $mr];
+        let mut acc = [[$zero; $nb]; $mr];
         let a0 = $a.as_ptr();
         let base = $ox * $t.px_step;
         let mut wp = $t.w.as_ptr();
         for &tap in $t.taps {
-            // SAFETY: pixel p reads a[base + p·px_step + tap + ci] ≤ the checked `last`.
+            // SAFETY: pixel p reads a[base + p·px_step + tap + e] below the checked `last`.
             let at = unsafe { a0.add(base + tap) };
-            for ci in 0..$t.cin {
-                // SAFETY: `wp` walks the taps·cin rows of `ld` floats of the group's weights.
-                let wv: [$v; $nb] = std::array::from_fn(|b| unsafe { $load(wp.add(b * $l)) });
+            for e in 0..$t.ce {
+                // SAFETY: `wp` walks the taps·ce rows of `ld` elements of the group's weights.
+                let wv: [$w; $nb] = std::array::from_fn(|b| unsafe { $load(wp.add(b * $l)) });
                 for r in 0..$mr {
-                    let av = $set1(unsafe { *at.add(r * $t.px_step + ci) });
+                    let av = $set1(unsafe { *at.add(r * $t.px_step + e) });
                     for b in 0..$nb {
                         acc[r][b] = $fma(av, wv[b], acc[r][b]);
                     }
@@ -196,30 +282,191 @@ macro_rules! tile_body {
     }};
 }
 
+/// Masked stores of the first `n` lanes, as `tile_body!` calls them.
+#[cfg(target_arch = "x86_64")]
+mod store {
+    use std::arch::x86_64::*;
+
+    /// # Safety
+    /// AVX-512F; `n ≤ 16` lanes writable at `p`.
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn lanes16(p: *mut f32, n: usize, v: __m512) {
+        // SAFETY: the caller's contract.
+        unsafe { _mm512_mask_storeu_ps(p, ((1u32 << n) - 1) as __mmask16, v) }
+    }
+
+    /// # Safety
+    /// AVX-512F/VL; `n ≤ 8` lanes writable at `p`.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512vl")]
+    pub(super) unsafe fn lanes8(p: *mut f32, n: usize, v: __m256) {
+        // SAFETY: the caller's contract.
+        unsafe { _mm256_mask_storeu_ps(p, ((1u32 << n) - 1) as __mmask8, v) }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Operand for f32 {
+    fn per_pixel(cin: usize) -> usize {
+        cin
+    }
+
+    fn put(dst: &mut [Self], src: &[f32]) {
+        dst.copy_from_slice(src);
+    }
+
+    fn pack(wt: &[f32], cin: usize, cout: usize, cols: Range<usize>) -> Vec<Self> {
+        pack_with(wt, (cin, cout, cols), 1, |v| v[0])
+    }
+
+    #[target_feature(enable = "avx512f")]
+    #[allow(clippy::needless_range_loop)]
+    unsafe fn tile<const MR: usize, const NB: usize>(
+        t: &Tile<'_, Self>,
+        a: &[Self],
+        dst: &mut [f32],
+        ox: usize,
+    ) {
+        use std::arch::x86_64::*;
+        tile_body!(
+            t,
+            a,
+            dst,
+            ox,
+            MR,
+            NB,
+            16,
+            __m512,
+            _mm512_setzero_ps(),
+            |p| _mm512_loadu_ps(p),
+            _mm512_set1_ps,
+            _mm512_fmadd_ps,
+            |p, n, v| unsafe { store::lanes16(p, n, v) }
+        )
+    }
+
+    #[target_feature(enable = "avx512f,avx512vl")]
+    #[allow(clippy::needless_range_loop)]
+    unsafe fn tile8<const MR: usize>(t: &Tile<'_, Self>, a: &[Self], dst: &mut [f32], ox: usize) {
+        use std::arch::x86_64::*;
+        tile_body!(
+            t,
+            a,
+            dst,
+            ox,
+            MR,
+            1,
+            8,
+            __m256,
+            _mm256_setzero_ps(),
+            |p| _mm256_loadu_ps(p),
+            _mm256_set1_ps,
+            _mm256_fmadd_ps,
+            |p, n, v| unsafe { store::lanes8(p, n, v) }
+        )
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Operand for Bf16Pair {
+    fn per_pixel(cin: usize) -> usize {
+        cin.div_ceil(2)
+    }
+
+    fn put(dst: &mut [Self], src: &[f32]) {
+        for (d, pair) in dst.iter_mut().zip(src.chunks(2)) {
+            *d = Self::of(pair);
+        }
+    }
+
+    fn pack(wt: &[f32], cin: usize, cout: usize, cols: Range<usize>) -> Vec<Self> {
+        pack_with(wt, (cin, cout, cols), 2, Self::of)
+    }
+
+    #[target_feature(enable = "avx512f,avx512bf16")]
+    #[allow(clippy::needless_range_loop)]
+    unsafe fn tile<const MR: usize, const NB: usize>(
+        t: &Tile<'_, Self>,
+        a: &[Self],
+        dst: &mut [f32],
+        ox: usize,
+    ) {
+        use std::arch::x86_64::*;
+        tile_body!(
+            t,
+            a,
+            dst,
+            ox,
+            MR,
+            NB,
+            16,
+            __m512bh,
+            _mm512_setzero_ps(),
+            // (`tile_body!` calls the load inside its own `unsafe` block.)
+            |p: *const Bf16Pair| std::mem::transmute::<__m512i, __m512bh>(_mm512_loadu_si512(
+                p.cast()
+            )),
+            |v: Bf16Pair| unsafe {
+                std::mem::transmute::<__m512i, __m512bh>(_mm512_set1_epi32(v.0 as i32))
+            },
+            |a, w, acc| _mm512_dpbf16_ps(acc, a, w),
+            |p, n, v| unsafe { store::lanes16(p, n, v) }
+        )
+    }
+
+    #[target_feature(enable = "avx512f,avx512vl,avx512bf16")]
+    #[allow(clippy::needless_range_loop)]
+    unsafe fn tile8<const MR: usize>(t: &Tile<'_, Self>, a: &[Self], dst: &mut [f32], ox: usize) {
+        use std::arch::x86_64::*;
+        tile_body!(
+            t,
+            a,
+            dst,
+            ox,
+            MR,
+            1,
+            8,
+            __m256bh,
+            _mm256_setzero_ps(),
+            // (`tile_body!` calls the load inside its own `unsafe` block.)
+            |p: *const Bf16Pair| std::mem::transmute::<__m256i, __m256bh>(_mm256_loadu_si256(
+                p.cast()
+            )),
+            |v: Bf16Pair| unsafe {
+                std::mem::transmute::<__m256i, __m256bh>(_mm256_set1_epi32(v.0 as i32))
+            },
+            |a, w, acc| _mm256_dpbf16_ps(acc, a, w),
+            |p, n, v| unsafe { store::lanes8(p, n, v) }
+        )
+    }
+}
+
 /// One group of output columns over one output row.
-struct Tile<'a> {
+struct Tile<'a, E> {
     /// Offset of each tap `(ky, kx)` in the padded input, from a pixel's first tap.
     taps: &'a [usize],
-    cin: usize,
-    /// Padded-input floats between two neighbouring output pixels (stride · cin).
+    /// Operand elements per pixel ([`Operand::per_pixel`]).
+    ce: usize,
+    /// Padded-input elements between two neighbouring output pixels (stride · ce).
     px_step: usize,
-    /// This group's weights, `[tap][ci][16·NB]`.
-    w: &'a [f32],
+    /// This group's weights, `[tap][element][columns padded to whole vectors]`.
+    w: &'a [E],
     cols: Range<usize>,
     cout: usize,
 }
 
-impl Tile<'_> {
+impl<E: Operand> Tile<'_, E> {
     /// Writes columns `self.cols` of the `wo` pixels of one output row (`dst`, `wo·cout`) from
     /// the padded input starting at that row's first tap (`a`).
     ///
     /// # Safety
-    /// AVX-512F and VL are available ([`available`]).
-    unsafe fn row(&self, a: &[f32], dst: &mut [f32], wo: usize) {
+    /// The CPU features of the operand `E` ([`available`], [`available_bf16`]).
+    unsafe fn row(&self, a: &[E], dst: &mut [f32], wo: usize) {
         assert!(dst.len() >= wo * self.cout);
-        let last = (wo - 1) * self.px_step + self.taps.last().copied().unwrap_or(0) + self.cin;
-        assert!(a.len() >= last && self.w.len() >= self.taps.len() * self.cin * self.ld());
-        // SAFETY (all calls): bounds asserted above; AVX-512F/VL by this fn's contract.
+        let last = (wo - 1) * self.px_step + self.taps.last().copied().unwrap_or(0) + self.ce;
+        assert!(a.len() >= last && self.w.len() >= self.taps.len() * self.ce * self.ld());
+        // SAFETY (all calls): bounds asserted above; CPU features by this fn's contract.
         unsafe {
             match self.cols.len().div_ceil(LANES) {
                 1 if self.cols.len() <= NARROW => self.runs8::<16>(a, dst, wo),
@@ -231,7 +478,7 @@ impl Tile<'_> {
         }
     }
 
-    /// Floats per weight row of this group: its columns padded to whole vectors.
+    /// Elements per weight row of this group: its columns padded to whole vectors.
     fn ld(&self) -> usize {
         self.cols.len().next_multiple_of(lanes(&self.cols))
     }
@@ -241,95 +488,26 @@ impl Tile<'_> {
     ///
     /// # Safety
     /// As [`Self::row`], with its bounds checked.
-    unsafe fn runs<const MR: usize, const NB: usize>(&self, a: &[f32], dst: &mut [f32], wo: usize) {
+    unsafe fn runs<const MR: usize, const NB: usize>(&self, a: &[E], dst: &mut [f32], wo: usize) {
         // SAFETY (both loops): every tile's pixels lie below wo, within the checked bounds.
         if wo < MR {
-            (0..wo).for_each(|ox| unsafe { self.tile::<1, NB>(a, dst, ox) });
+            (0..wo).for_each(|ox| unsafe { E::tile::<1, NB>(self, a, dst, ox) });
         } else {
-            tile_starts(wo, MR).for_each(|ox| unsafe { self.tile::<MR, NB>(a, dst, ox) });
+            tile_starts(wo, MR).for_each(|ox| unsafe { E::tile::<MR, NB>(self, a, dst, ox) });
         }
     }
 
-    /// [`Self::runs`] on 8-lane registers ([`Self::tile8`]).
+    /// [`Self::runs`] on 8-lane registers ([`Operand::tile8`]).
     ///
     /// # Safety
     /// As [`Self::row`], with its bounds checked.
-    unsafe fn runs8<const MR: usize>(&self, a: &[f32], dst: &mut [f32], wo: usize) {
+    unsafe fn runs8<const MR: usize>(&self, a: &[E], dst: &mut [f32], wo: usize) {
         // SAFETY (both loops): every tile's pixels lie below wo, within the checked bounds.
         if wo < MR {
-            (0..wo).for_each(|ox| unsafe { self.tile8::<1>(a, dst, ox) });
+            (0..wo).for_each(|ox| unsafe { E::tile8::<1>(self, a, dst, ox) });
         } else {
-            tile_starts(wo, MR).for_each(|ox| unsafe { self.tile8::<MR>(a, dst, ox) });
+            tile_starts(wo, MR).for_each(|ox| unsafe { E::tile8::<MR>(self, a, dst, ox) });
         }
-    }
-
-    /// Pixels `ox..ox + MR` of the row, all `NB` blocks of 16 columns of this group.
-    ///
-    /// # Safety
-    /// AVX-512F; `ox + MR ≤ wo` for the `wo` of [`Self::row`]'s checks.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    #[allow(clippy::needless_range_loop)]
-    unsafe fn tile<const MR: usize, const NB: usize>(&self, a: &[f32], dst: &mut [f32], ox: usize) {
-        use std::arch::x86_64::*;
-        tile_body!(
-            self,
-            a,
-            dst,
-            ox,
-            MR,
-            NB,
-            16,
-            __m512,
-            _mm512_setzero_ps,
-            _mm512_loadu_ps,
-            _mm512_set1_ps,
-            _mm512_fmadd_ps,
-            |p, n: usize, v| {
-                // SAFETY: the caller passes n writable lanes at p.
-                unsafe { _mm512_mask_storeu_ps(p, ((1u32 << n) - 1) as __mmask16, v) }
-            }
-        )
-    }
-
-    /// [`Self::tile`] for a group of at most 8 columns, on 8-lane registers (on Zen 4 an 8-lane
-    /// FMA costs half a 16-lane one; elsewhere the same as a half-empty 16-lane one).
-    ///
-    /// # Safety
-    /// AVX-512F and VL; `ox + MR ≤ wo` for the `wo` of [`Self::row`]'s checks.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,avx512vl")]
-    #[allow(clippy::needless_range_loop)]
-    unsafe fn tile8<const MR: usize>(&self, a: &[f32], dst: &mut [f32], ox: usize) {
-        use std::arch::x86_64::*;
-        tile_body!(
-            self,
-            a,
-            dst,
-            ox,
-            MR,
-            1,
-            8,
-            __m256,
-            _mm256_setzero_ps,
-            _mm256_loadu_ps,
-            _mm256_set1_ps,
-            _mm256_fmadd_ps,
-            |p, n: usize, v| {
-                // SAFETY: the caller passes n writable lanes at p.
-                unsafe { _mm256_mask_storeu_ps(p, ((1u32 << n) - 1) as __mmask8, v) }
-            }
-        )
-    }
-
-    #[cfg(not(target_arch = "x86_64"))]
-    unsafe fn tile<const MR: usize, const NB: usize>(&self, _: &[f32], _: &mut [f32], _: usize) {
-        unreachable!("direct convolution only where available()")
-    }
-
-    #[cfg(not(target_arch = "x86_64"))]
-    unsafe fn tile8<const MR: usize>(&self, _: &[f32], _: &mut [f32], _: usize) {
-        unreachable!("direct convolution only where available()")
     }
 }
 
@@ -340,6 +518,15 @@ mod tests {
     /// The direct path sums the same products as im2col + GEMM in another order: f32
     /// rounding, relative to the magnitude of the output (or 1).
     const DIRECT_TOL: f32 = 2e-5;
+
+    fn worst_rel(got: &Hwc, want: &Hwc) -> f32 {
+        assert_eq!((got.h, got.w, got.c), (want.h, want.w, want.c));
+        want.d
+            .iter()
+            .zip(&got.d)
+            .map(|(a, b)| (a - b).abs() / a.abs().max(1.0))
+            .fold(0.0f32, f32::max)
+    }
 
     fn det(i: usize, salt: usize) -> f32 {
         ((i * 7919 + salt * 104_729) % 2003) as f32 / 2003.0 - 0.5
@@ -359,7 +546,7 @@ mod tests {
     }
 
     #[test]
-    fn direct_conv_matches_im2col_gemm() {
+    fn direct_conv_matches_im2col_gemm_and_bf16_matches_it_on_rounded_operands() {
         if !available() {
             eprintln!("no AVX-512F/VL: direct convolution not tested");
             return;
@@ -387,6 +574,7 @@ mod tests {
                 cin,
                 cout,
                 wt,
+                bf16: false,
             };
             let x = Hwc {
                 h,
@@ -400,15 +588,29 @@ mod tests {
                     continue;
                 }
                 let want = conv.im2col_rows(&x, &conv.wt, rows.clone());
-                let got = run_rows(&conv, &x, &conv.wt, rows.clone());
-                assert_eq!((got.h, got.w, got.c), (want.h, want.w, want.c));
-                let worst = want
-                    .d
-                    .iter()
-                    .zip(&got.d)
-                    .map(|(a, b)| (a - b).abs() / a.abs().max(1.0))
-                    .fold(0.0f32, f32::max);
+                let got = run_rows(&conv, &x, &conv.wt, rows.clone(), false);
+                let worst = worst_rel(&got, &want);
                 assert!(worst < DIRECT_TOL, "case {n}, rows {rows:?}: {worst:e}");
+                if available_bf16() {
+                    // bf16 products of bf16-rounded operands are exact in f32: the same sums
+                    // as f32 products of the rounded operands.
+                    let round = |v: &[f32]| -> Vec<f32> {
+                        v.iter()
+                            .map(|&v| f32::from_bits(to_bf16(v) << 16))
+                            .collect()
+                    };
+                    let xr = Hwc {
+                        d: round(&x.d),
+                        ..x.clone()
+                    };
+                    let want = conv.im2col_rows(&xr, &round(&conv.wt), rows.clone());
+                    let got = run_rows(&conv, &x, &conv.wt, rows.clone(), true);
+                    let worst = worst_rel(&got, &want);
+                    assert!(
+                        worst < DIRECT_TOL,
+                        "bf16 case {n}, rows {rows:?}: {worst:e}"
+                    );
+                }
             }
         }
     }

@@ -22,6 +22,10 @@ use conv::{Hwc, PackedConv, concat};
 /// Largest accepted image side, in pixels (guards size arithmetic).
 pub const MAX_SIDE: usize = 1 << 15;
 
+/// Largest difference of a [`UNet::with_bf16`] param map from the f32 one (torch's), per value
+/// `|a − b| / (1 + |b|)`, on the embedded model's golden photo (`tests/parity.rs`).
+pub const BF16_PARAM_TOL: f32 = 2e-2;
+
 pub(crate) fn pad_multiple(n: usize) -> usize {
     n.next_multiple_of(nam_weights::UNET_MULTIPLE)
 }
@@ -126,6 +130,49 @@ impl UNet {
                 1,
             ),
         })
+    }
+
+    /// The same network with bf16 products and f32 sums in its k×k convolutions (the
+    /// ReverseBlocks' transposed convs stay f32), where the CPU has AVX-512 BF16: about twice the
+    /// products per instruction, the param map within [`BF16_PARAM_TOL`] of f32's. Errors
+    /// when the CPU lacks the instructions.
+    pub fn with_bf16(mut self) -> Result<Self> {
+        if !direct::available_bf16() {
+            return Err(ModelError::Unsupported(
+                "a bf16 estimate needs a CPU with AVX-512 BF16",
+            ));
+        }
+        self.set_bf16(true);
+        Ok(self)
+    }
+
+    /// The same network with f32 products (undoes [`Self::with_bf16`]).
+    pub fn with_f32(mut self) -> Self {
+        self.set_bf16(false);
+        self
+    }
+
+    fn set_bf16(&mut self, on: bool) {
+        let mut convs = vec![&mut self.stem, &mut self.head];
+        for b in self
+            .enc
+            .iter_mut()
+            .chain([&mut self.dec1.1, &mut self.dec2.1, &mut self.dec3.1])
+            .chain([&mut self.dec4.0, &mut self.dec4.1])
+        {
+            convs.extend(b.convs_mut());
+        }
+        convs.extend([
+            &mut self.dec1.0.conv,
+            &mut self.dec2.0.conv,
+            &mut self.dec3.0.conv,
+        ]);
+        convs.into_iter().for_each(|c| c.bf16 = on);
+    }
+
+    /// Whether [`Self::with_bf16`] made this network's products bf16.
+    pub fn is_bf16(&self) -> bool {
+        self.stem.bf16
     }
 
     /// Heap bytes [`Self::estimate`] holds at its peak for a `height × width` input, the returned
