@@ -289,6 +289,10 @@ pub fn markdown(res: &RunResults, meta: &ReportMeta) -> String {
          divides the photo by the capture cos θ (n = +z) and multiplies by the new `max(ωi.z, 0)`; \
          the *GGX ground truth* row is the analytic render itself (error 0 by construction; its \
          time is the cost of rendering from the true maps, which a photo-only method never has).\n\
+         - **Precision** (CPU fast): *bf16* estimates and relights with bf16 products and f32 sums \
+         (`set_cpu_precision`), so its error is the two approximations together; *int8* relights \
+         with int8 products and exact i32 sums after an f32 estimate (the U-Net has no int8 \
+         path).\n\
          - **Times**: wall clock, median over calls, after one untimed warm-up (except the CPU \
          reference). *ms / estimate*: one `M_est` run (or the baseline's preparation) on a \
          {side}² photo; *ms / relit MP*: one relight of the {side}² image divided by its \
