@@ -8,6 +8,8 @@
 //! band and the weights are rounded to bf16 pairs of input channels and each `vdpbf16ps` sums two
 //! products into f32: twice the products per instruction.
 #![allow(unsafe_code)]
+// Elsewhere only `available()` is reachable (false): the kernels are x86-64 code.
+#![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
 use std::ops::Range;
 
@@ -68,6 +70,7 @@ pub(super) fn run_rows(
     rows: Range<usize>,
     bf16: bool,
 ) -> Hwc {
+    #[cfg(target_arch = "x86_64")]
     if bf16 {
         assert!(
             available_bf16(),
@@ -77,6 +80,11 @@ pub(super) fn run_rows(
     } else {
         assert!(available(), "direct convolution without AVX-512F/VL");
         run_rows_with::<f32>(conv, x, wt, rows)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (conv, x, wt, rows, bf16);
+        unreachable!("direct convolution only where available()")
     }
 }
 
@@ -242,6 +250,7 @@ fn pack_with<E: Copy + Default>(
 /// The register tile of [`Operand::tile`] over one vector width: `MR` pixels × `NB` vectors of
 /// `L` lanes (f32 accumulators), summed over every tap and operand element, then stored (the last
 /// vector masked to the group's columns). `$load`, `$set1` and `$fma` build the products.
+#[cfg(target_arch = "x86_64")]
 macro_rules! tile_body {
     ($t:ident, $a:ident, $dst:ident, $ox:ident, $mr:expr, $nb:expr, $l:expr, $w:ty, $zero:expr,
      $load:expr, $set1:expr, $fma:expr, $store:expr) => {{
@@ -293,7 +302,7 @@ mod store {
     #[target_feature(enable = "avx512f")]
     pub(super) unsafe fn lanes16(p: *mut f32, n: usize, v: __m512) {
         // SAFETY: the caller's contract.
-        unsafe { _mm512_mask_storeu_ps(p, ((1u32 << n) - 1) as __mmask16, v) }
+        unsafe { _mm512_mask_storeu_ps(p, crate::simd::lanes(n), v) }
     }
 
     /// # Safety
