@@ -10,7 +10,7 @@ use nam::geometry::{CAPTURE_DISTANCE, Light, View, capture_half_z, pixel_positio
 use nam::{CpuPrecision, DVec3, NeuralMaterial, NeuralModel, Photo, Scene, relight};
 use nam_ggx::{LightView, SvbrdfMaps, render};
 use nam_model::reference::{self, Accumulate};
-use nam_model::{ParamMap, RenderNet, Source};
+use nam_model::{ParamMap, Source};
 use rayon::prelude::*;
 use std::path::PathBuf;
 
@@ -228,8 +228,6 @@ fn attach_gpu(_: &mut NeuralModel, _: Precision, _: Option<&GpuDevice>) -> Resul
 pub struct Prepared {
     spec: MethodSpec,
     model: Option<NeuralModel>,
-    /// The bf16 or int8 render network (also the facade's, which estimates in the same precision).
-    reduced: Option<RenderNet>,
     width: usize,
 }
 
@@ -256,24 +254,16 @@ impl Prepared {
             return Ok(Self {
                 spec: spec.clone(),
                 model: None,
-                reduced: None,
                 width: 0,
             });
         };
         let mut model = NeuralModel::from_file(&cfg.model)?;
-        let mut reduced = None;
         match (cfg.backend, cfg.precision) {
             (Backend::CpuReference | Backend::CpuFast, Precision::F32) => {}
-            // The facade's CPU estimate follows the precision (`set_cpu_precision`): the row's
-            // error is the reduced estimate's and relight's together.
-            (Backend::CpuFast, Precision::Bf16) => {
-                model.set_cpu_precision(CpuPrecision::Bf16)?;
-                reduced = Some(model.cpu().render.clone());
-            }
-            (Backend::CpuFast, Precision::Int8) => {
-                model.set_cpu_precision(CpuPrecision::Int8)?;
-                reduced = Some(model.cpu().render.clone());
-            }
+            // The facade's CPU estimate and relight follow the precision (`set_cpu_precision`):
+            // the row's error is the reduced estimate's and relight's together.
+            (Backend::CpuFast, Precision::Bf16) => model.set_cpu_precision(CpuPrecision::Bf16)?,
+            (Backend::CpuFast, Precision::Int8) => model.set_cpu_precision(CpuPrecision::Int8)?,
             (Backend::Gpu, Precision::F32 | Precision::F16) => {
                 attach_gpu(&mut model, cfg.precision, gpu)?;
             }
@@ -302,7 +292,6 @@ impl Prepared {
         Ok(Self {
             spec: spec.clone(),
             model: Some(model),
-            reduced,
             width,
         })
     }
@@ -376,13 +365,13 @@ impl Prepared {
                     &self.spec,
                     MethodSpec::Neural(c) if c.specialisation == Specialisation::Directional
                 );
-                let net = self.reduced.as_ref().unwrap_or(&model.cpu().render);
+                let net = &model.cpu().render;
                 if let MethodSpec::Neural(NeuralConfig {
                     specialisation: Specialisation::Interpolated(md),
                     ..
                 }) = &self.spec
                 {
-                    // As the reduced-precision branch below: the facade's CPU path for protocol scenes.
+                    // The facade's CPU network, in the row's precision.
                     let angle = (*md as f32 / 1000.0).to_radians();
                     let rgb = net.relight_interpolated(
                         mat.params(),
@@ -397,18 +386,8 @@ impl Prepared {
                     // and an orthographic view: the facade's constant-direction plan.
                     let wi = lv.light.try_normalize().unwrap_or(DVec3::Z);
                     let wo = lv.view.try_normalize().unwrap_or(DVec3::Z);
-                    if self.reduced.is_some() {
-                        let rgb = net.relight_directional(mat.params(), to32(wi), to32(wo))?;
-                        return Ok(rgb.data);
-                    }
                     let far = Scene::new(Light::Directional(wi), View::Orthographic(wo));
                     Ok(relight(model, mat, &far)?.into_vec())
-                } else if self.reduced.is_some() {
-                    // What the facade's CPU path runs (protocol lights and viewers are above
-                    // the surface, unit intensity, no falloff), with the bf16 or int8 network.
-                    Ok(net
-                        .relight(mat.params(), to32(lv.light), to32(lv.view))?
-                        .data)
                 } else {
                     Ok(relight(model, mat, &scene)?.into_vec())
                 }

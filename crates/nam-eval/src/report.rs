@@ -300,7 +300,7 @@ pub fn markdown(res: &RunResults, meta: &ReportMeta) -> String {
          shared with other processes on this machine, so times carry noise of tens of percent.\n\
          - **Specialisation** *directional*: the facade's `relight` with a directional light and \
          an orthographic view (ND_enc once per image, DESIGN §9; on the CPU, or on the GPU where \
-         the backend says so; bf16 and int8 rows call `RenderNet::relight_directional`) with the \
+         the backend says so; bf16 and int8 rows in their precision) with the \
          protocol's point light and viewer replaced by their directions from the material \
          centre; its error includes that approximation. *Interpolated ND_enc (≤ x°)*: the \
          protocol's point light and viewer, ND_enc evaluated only on a grid of pixels whose \
