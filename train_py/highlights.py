@@ -13,6 +13,9 @@ away from the camera (``MOVED_LIGHTS``, view at the camera). Two checks per (mat
   ``CLIPPED_RATIO`` of the truth's (neither a dark blob nor the capture highlight left in place).
 
 The diffuse fit (Lambertian albedo from the photo) is scored the same way as a baseline.
+
+``--oracle`` scores GGX renders of the *true* maps with one map perturbed (``PERTURBATIONS``): how
+accurate an estimate of each map must be for the peak check to pass.
 """
 
 from __future__ import annotations
@@ -39,6 +42,69 @@ REFERENCE_SIZE = 256
 PEAK_SIGMA = 4.0
 PEAK_TOLERANCE_PX = 10.0
 CLIPPED_RATIO = (0.5, 2.0)
+
+
+def _box_blur(x: torch.Tensor) -> torch.Tensor:
+    """``[1, H, W, C]`` averaged over windows 9 px wide at 256² (scaled to the size; replicate
+    padding)."""
+    side = 2 * round(4 * x.shape[2] / REFERENCE_SIZE) + 1
+    y = F.pad(x.permute(0, 3, 1, 2), (side // 2,) * 4, mode="replicate")
+    return F.avg_pool2d(y, side, 1).permute(0, 2, 3, 1)
+
+
+def _with(maps: dict[str, torch.Tensor], key: str, value: torch.Tensor) -> dict[str, torch.Tensor]:
+    return {**maps, key: value}
+
+
+#: Perturbed true maps for ``--oracle``: (name, maps → maps).
+PERTURBATIONS = (
+    ("roughness × 1.3", lambda m: _with(m, "roughness", (m["roughness"] * 1.3).clamp(0.02, 1))),
+    ("roughness ÷ 1.3", lambda m: _with(m, "roughness", (m["roughness"] / 1.3).clamp(0.02, 1))),
+    (
+        "roughness: its median everywhere",
+        lambda m: _with(m, "roughness", torch.full_like(m["roughness"], float(m["roughness"].median()))),
+    ),
+    ("normals box-blurred over 9 px (256²)", lambda m: _with(m, "normal", F.normalize(_box_blur(m["normal"]), dim=-1))),
+    ("normals flat", lambda m: _with(m, "normal", torch.tensor([0.0, 0.0, 1.0]).expand_as(m["normal"]).contiguous())),
+    ("diffuse box-blurred over 9 px (256²)", lambda m: _with(m, "diffuse", _box_blur(m["diffuse"]))),
+    ("specular × 1.5", lambda m: _with(m, "specular", m["specular"] * 1.5)),
+)
+
+
+def oracle(size: int = REFERENCE_SIZE, count: int | None = None) -> list[tuple[str, float, float]]:
+    """(perturbation, share of peaks within the tolerance, median peak error in px of 256²) for GGX
+    renders of perturbed true maps, over the cases :func:`run` scores."""
+    files = materials.list_files("test")[:count]
+    cam = ggx.capture_position().view(1, 1, 3)
+    dists: dict[str, list[float]] = {name: [] for name, _ in PERTURBATIONS}
+    for i, path in enumerate(files):
+        maps = glossy(materials.load_maps(path, size), i)
+        for light_xyz in MOVED_LIGHTS:
+            light = torch.tensor(light_xyz).view(1, 1, 3)
+            truth = ggx.render_maps(maps, light, cam)[0, 0]
+            no_clip = torch.zeros(truth.shape[:2], dtype=torch.bool)
+            for name, perturb in PERTURBATIONS:
+                dists[name].append(score(ggx.render_maps(perturb(maps), light, cam)[0, 0], truth, no_clip)[0])
+    out = []
+    for name, d in dists.items():
+        t = torch.tensor(d)
+        out.append((name, float((t <= PEAK_TOLERANCE_PX).float().mean()), float(t.median())))
+    return out
+
+
+def oracle_markdown(rows: list[tuple[str, float, float]], size: int, cases: int, seconds: float) -> str:
+    lines = [
+        "# Highlight test: how accurate the maps must be",
+        "",
+        f"GGX renders of the true glossy test maps with one map perturbed, scored by the peak check "
+        f"against the unperturbed render ({cases} cases, {size}²). Command: `python -m "
+        f"train_py.highlights --oracle --size {size}` ({seconds:.0f} s).",
+        "",
+        "| true maps, except | peak within 10 px | median peak error (px) |",
+        "|---|---:|---:|",
+    ]
+    lines += [f"| {name} | {100 * share:.0f}% | {median:.1f} |" for name, share, median in rows]
+    return "\n".join(lines) + "\n"
 
 
 def glossy(maps: dict[str, torch.Tensor], index: int) -> dict[str, torch.Tensor]:
@@ -144,10 +210,20 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--size", type=int, default=REFERENCE_SIZE, help="image side (quick checks: smaller)")
     ap.add_argument("--materials", type=int, default=None, help="only the first N test sets (quick checks)")
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--oracle", action="store_true", help="score perturbed true maps instead of a model")
     ap.add_argument("-o", "--output")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.oracle:
+        t0 = time.time()
+        rows = oracle(args.size, args.materials)
+        cases = len(materials.list_files("test")[: args.materials]) * len(MOVED_LIGHTS)
+        md = oracle_markdown(rows, args.size, cases, time.time() - t0)
+        print(md)
+        if args.output:
+            Path(args.output).write_text(md)
+        return
     from .export import load_model
 
     model = load_model(args.model) if args.model else None

@@ -298,6 +298,42 @@ def latent_l1(params: torch.Tensor, encoder: nn.Module, maps: dict[str, torch.Te
     return (params.float() - target).abs().mean()
 
 
+class MapProbe(nn.Module):
+    """A training-only head that reads the geometry a highlight depends on back from the params:
+    ``[B, 64, H, W]`` → normal (3) and roughness α (1) per pixel, a 1×1-conv MLP.
+
+    ``train --maps-weight`` adds its dense L1 against the true maps at *every* pixel, so the latent
+    has to hold the normals and roughness where the rendering loss, on a sampled share of the pixels
+    and in log space, sees them only through a highlight's position. Not exported: the model file
+    and the runtime do not change. Not in the paper. The normal is not normalised: through a
+    normalisation, a prediction pointing away from the truth gets no gradient to turn it (a run
+    whose probe started pointing down stayed there), while the raw vector's L1 pulls it straight
+    to the unit target; its z output starts at 1 (a flat surface).
+    """
+
+    #: Hidden width of the probe.
+    HIDDEN = 32
+
+    def __init__(self):
+        super().__init__()
+        self.net = nn.Sequential(nn.Conv2d(PARAM_CHANNELS, self.HIDDEN, 1), nn.ReLU(), nn.Conv2d(self.HIDDEN, 4, 1))
+        with torch.no_grad():
+            self.net[2].bias.copy_(torch.tensor([0.0, 0.0, 1.0, 0.0]))
+
+    def forward(self, params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Normals ``[B, H, W, 3]`` and roughness ``[B, H, W]`` (> 0)."""
+        out = self.net(params.float())
+        return out[:, :3].permute(0, 2, 3, 1), torch.nn.functional.softplus(out[:, 3])
+
+
+def maps_l1(probe: MapProbe, params: torch.Tensor, maps: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Dense L1 of the probe's normals and roughness against the true maps (mean over pixels; the
+    normal's three components and the roughness weigh the same)."""
+    normal, rough = probe(params)
+    err = (normal - maps["normal"]).abs().sum(-1) + (rough - maps["roughness"]).abs()
+    return err.mean() / 4
+
+
 def lr_at(progress: float, lr: float, lr_final: float, warmup: float = 0.02) -> float:
     """Short linear warm-up, then cosine decay from ``lr`` to ``lr_final`` over progress ∈ [0, 1]."""
     if progress < warmup:
@@ -306,11 +342,12 @@ def lr_at(progress: float, lr: float, lr_final: float, warmup: float = 0.02) -> 
     return lr_final + 0.5 * (lr - lr_final) * (1 + math.cos(math.pi * t))
 
 
-def save_checkpoint(path: Path, model: NamModel, opt, state: dict) -> None:
+def save_checkpoint(path: Path, model: NamModel, opt, state: dict, probe: nn.Module | None = None) -> None:
     tmp = path.with_suffix(".tmp")
-    torch.save(
-        {"config": model.config.as_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(), **state}, tmp
-    )
+    saved = {"config": model.config.as_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(), **state}
+    if probe is not None:
+        saved["probe"] = probe.state_dict()
+    torch.save(saved, tmp)
     os.replace(tmp, path)
 
 
@@ -442,6 +479,13 @@ def parse_args(argv=None):
     )
     ap.add_argument("--freeze-decoder", action="store_true", help="ND_enc and M_render are not trained")
     ap.add_argument(
+        "--maps-weight",
+        type=float,
+        default=0.0,
+        help="weight of a dense L1 of the normals and roughness read back from the params by a "
+        "training-only probe (MapProbe; not exported, not in the paper; 0: off)",
+    )
+    ap.add_argument(
         "--no-straight-through",
         action="store_true",
         help="true LeakyReLU(0.001) gradient at the output (dies early; for comparisons only)",
@@ -470,12 +514,17 @@ def train(args) -> dict:
     if args.width:
         config = dataclasses.replace(config, width=args.width)
     model = NamModel(config).to(device)
-    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    probe = MapProbe().to(device) if args.maps_weight else None
+    opt = torch.optim.Adam([*model.parameters(), *(probe.parameters() if probe else ())], lr=args.lr)
     #: ``frozen_bn``: BatchNorms in eval mode throughout (a run started from a folded model file).
     state = {"step": 0, "elapsed": 0.0, "cpu": 0.0, "loss": None, "history": [], "frozen_bn": False}
     if args.resume and ckpt_path.exists():
         ckpt = torch.load(ckpt_path, map_location=device, weights_only=False)
         model.load_state_dict(ckpt["model"])
+        if (probe is not None) != ("probe" in ckpt):
+            raise SystemExit(f"--resume {ckpt_path}: --maps-weight must be given exactly when the run had it")
+        if probe is not None:
+            probe.load_state_dict(ckpt["probe"])
         opt.load_state_dict(ckpt["optimizer"])
         state = {**state, **{k: ckpt[k] for k in state if k in ckpt}}
         if rank == 0:
@@ -565,6 +614,10 @@ def train(args) -> dict:
             loss = loss + args.chroma_weight * chroma_l1(pred.float(), target)
         if args.latent_weight:
             loss = loss + args.latent_weight * latent_l1(trainer.last_params, encoder, maps)
+        maps_err = None
+        if probe is not None:
+            maps_err = maps_l1(probe, trainer.last_params, maps)
+            loss = loss + args.maps_weight * maps_err
         if args.bottleneck_limit:
             loss = loss + bottleneck_excess(model.est.last_bottleneck, args.bottleneck_limit)
         if activations is not None and (excess := activations.take()) is not None:
@@ -579,6 +632,7 @@ def train(args) -> dict:
             emit(
                 f"step {step:6d}  loss {val:.4f}  ema {ema:.4f}  lr {lr:.2e}  "
                 f"{time.time() - t0:.2f} s/step  {elapsed / 60:.1f} min"
+                + (f"  maps {float(maps_err.detach()):.4f}" if maps_err is not None else "")
             )
         state.update(step=step, elapsed=time.time() - start, cpu=time.process_time() - cpu_start, loss=ema)
         if args.val_every and step % args.val_every == 0 and rank == 0:
@@ -586,11 +640,11 @@ def train(args) -> dict:
             state["history"].append({"step": step, **res})
             emit(f"val   {step:6d}  " + "  ".join(f"{k} {v:.4f}" for k, v in res.items()))
         if rank == 0 and time.time() - last_ckpt > 60 * args.ckpt_minutes:
-            save_checkpoint(ckpt_path, model, opt, state)
+            save_checkpoint(ckpt_path, model, opt, state, probe)
             last_ckpt = time.time()
     if rank == 0:
         state["minutes"] = state["elapsed"] / 60
-        save_checkpoint(ckpt_path, model, opt, state)
+        save_checkpoint(ckpt_path, model, opt, state, probe)
         emit(
             f"done: {step} steps, {state['elapsed'] / 60:.1f} min ({state['cpu'] / 60:.1f} CPU-min), "
             f"ema loss {ema:.4f}; wrote {ckpt_path}"

@@ -13,6 +13,7 @@ from train_py.export import fold_state_dict, freeze_batchnorm, save_model, unfol
 from train_py.model import CONFIGS, NamModel
 from train_py.train import (
     ActivationExcess,
+    MapProbe,
     TrainStep,
     bottleneck_excess,
     capture_clipped,
@@ -22,6 +23,7 @@ from train_py.train import (
     gather_rows,
     highlight_weights,
     make_batch,
+    maps_l1,
     select_pixels,
     select_shared_pixels,
     specular_share,
@@ -377,3 +379,38 @@ def test_highlight_weights_find_the_mirror_highlight_and_the_clipped_pixels():
     focus = torch.ones(1, 1, size * size)
     focus[0, 0, centre] = 1e6
     torch.testing.assert_close(weighted_mean(err, focus), err[0, 0, centre].mean(), rtol=1e-3, atol=0)
+
+
+def test_map_probe_learns_the_normals_from_params_and_its_run_resumes_only_with_the_flag(tmp_path):
+    # The probe reads normals and positive roughness from params; trained on params that hold the
+    # maps (here: the maps themselves in the first channels), its dense L1 falls far, also from a
+    # start pointing down (through a normalisation that start would get no gradient to turn).
+    torch.manual_seed(0)
+    maps, _ = make_batch([3, 4], 16, "cpu")
+    params = torch.zeros(2, 64, 16, 16)
+    params[:, :3] = maps["normal"].permute(0, 3, 1, 2)
+    params[:, 3] = maps["roughness"]
+    probe = MapProbe()
+    normal, rough = probe(params)
+    assert normal.shape == (2, 16, 16, 3) and rough.shape == (2, 16, 16) and float(rough.min()) > 0
+    with torch.no_grad():
+        probe.net[2].bias[2] = -3.0
+    opt = torch.optim.Adam(probe.parameters(), lr=1e-2)
+    first = float(maps_l1(probe, params, maps))
+    for _ in range(300):
+        loss = maps_l1(probe, params, maps)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss) < 0.1 * first
+    assert float((probe(params)[0] - maps["normal"]).abs().sum(-1).mean()) < 0.1
+    # A run with --maps-weight keeps the probe in its checkpoint; resuming needs the same flag.
+    cmd = [sys.executable, "-m", "train_py.train", "--config", "tiny", "--steps", "2", "--size", "32"]
+    cmd += ["--batch", "2", "--outputs", "2", "--val-every", "0", "--threads", "1", "--out", str(tmp_path)]
+    subprocess.run([*cmd, "--maps-weight", "1"], cwd=REPO, check=True, capture_output=True, timeout=120)
+    assert "probe" in torch.load(tmp_path / "ckpt.pt", weights_only=False)
+    cmd[6] = "3"
+    again = subprocess.run([*cmd, "--resume"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert again.returncode != 0 and "--maps-weight" in again.stderr
+    subprocess.run([*cmd, "--resume", "--maps-weight", "1"], cwd=REPO, check=True, capture_output=True, timeout=120)
+    assert torch.load(tmp_path / "ckpt.pt", weights_only=False)["step"] == 3
