@@ -313,12 +313,17 @@ class MapProbe(nn.Module):
 
     #: Hidden width of the probe.
     HIDDEN = 32
+    #: Its learning rate over the run's: a fresh probe has to catch up with a trained latent (at
+    #: the fine-tunes' 3e-4 it stayed at a constant guess for hundreds of steps).
+    LR_SCALE = 10.0
+    #: Initial roughness output, ``softplus(b) ≈ 0.3`` (a typical α).
+    ROUGHNESS_BIAS = -1.05
 
     def __init__(self):
         super().__init__()
         self.net = nn.Sequential(nn.Conv2d(PARAM_CHANNELS, self.HIDDEN, 1), nn.ReLU(), nn.Conv2d(self.HIDDEN, 4, 1))
         with torch.no_grad():
-            self.net[2].bias.copy_(torch.tensor([0.0, 0.0, 1.0, 0.0]))
+            self.net[2].bias.copy_(torch.tensor([0.0, 0.0, 1.0, self.ROUGHNESS_BIAS]))
 
     def forward(self, params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Normals ``[B, H, W, 3]`` and roughness ``[B, H, W]`` (> 0)."""
@@ -515,7 +520,10 @@ def train(args) -> dict:
         config = dataclasses.replace(config, width=args.width)
     model = NamModel(config).to(device)
     probe = MapProbe().to(device) if args.maps_weight else None
-    opt = torch.optim.Adam([*model.parameters(), *(probe.parameters() if probe else ())], lr=args.lr)
+    groups = [{"params": list(model.parameters()), "lr_scale": 1.0}]
+    if probe is not None:
+        groups.append({"params": list(probe.parameters()), "lr_scale": MapProbe.LR_SCALE})
+    opt = torch.optim.Adam(groups, lr=args.lr)
     #: ``frozen_bn``: BatchNorms in eval mode throughout (a run started from a folded model file).
     state = {"step": 0, "elapsed": 0.0, "cpu": 0.0, "loss": None, "history": [], "frozen_bn": False}
     if args.resume and ckpt_path.exists():
@@ -585,7 +593,7 @@ def train(args) -> dict:
             break
         lr = lr_at(progress, args.lr, args.lr_final)
         for group in opt.param_groups:
-            group["lr"] = lr
+            group["lr"] = lr * group.get("lr_scale", 1.0)
         t0 = time.time()
         seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (args.batch,), generator=data_gen).tolist()
         size, outputs = args.size, args.outputs
