@@ -71,25 +71,34 @@ PERTURBATIONS = (
 )
 
 
-def oracle(size: int = REFERENCE_SIZE, count: int | None = None) -> list[tuple[str, float, float]]:
-    """(perturbation, share of peaks within the tolerance, median peak error in px of 256²) for GGX
-    renders of perturbed true maps, over the cases :func:`run` scores."""
-    files = materials.list_files("test")[:count]
-    cam = ggx.capture_position().view(1, 1, 3)
-    dists: dict[str, list[float]] = {name: [] for name, _ in PERTURBATIONS}
-    for i, path in enumerate(files):
+def glossy_sets(size: int, count: int | None):
+    """The test's glossy sets (the first ``count``; default all) at ``size``², each as its maps and,
+    per moved light, ``(light [1, 1, 3], GGX truth [size, size, 3])``."""
+    view = ggx.capture_position().view(1, 1, 3)
+    for i, path in enumerate(materials.list_files("test")[:count]):
         maps = glossy(materials.load_maps(path, size), i)
-        for light_xyz in MOVED_LIGHTS:
-            light = torch.tensor(light_xyz).view(1, 1, 3)
-            truth = ggx.render_maps(maps, light, cam)[0, 0]
+        lights = [torch.tensor(xyz).view(1, 1, 3) for xyz in MOVED_LIGHTS]
+        yield maps, [(light, ggx.render_maps(maps, light, view)[0, 0]) for light in lights]
+
+
+def peak_stats(dists: list[float]) -> tuple[float, float]:
+    """Share of peak errors within ``PEAK_TOLERANCE_PX`` and their median."""
+    t = torch.tensor(dists)
+    return float((t <= PEAK_TOLERANCE_PX).float().mean()), float(t.median())
+
+
+def oracle(size: int = REFERENCE_SIZE, count: int | None = None) -> tuple[list[tuple[str, float, float]], int]:
+    """(perturbation, share of peaks within the tolerance, median peak error in px of 256²) for GGX
+    renders of perturbed true maps, over the cases :func:`run` scores; and the number of cases."""
+    view = ggx.capture_position().view(1, 1, 3)
+    dists: dict[str, list[float]] = {name: [] for name, _ in PERTURBATIONS}
+    for maps, cases in glossy_sets(size, count):
+        for light, truth in cases:
             no_clip = torch.zeros(truth.shape[:2], dtype=torch.bool)
             for name, perturb in PERTURBATIONS:
-                dists[name].append(score(ggx.render_maps(perturb(maps), light, cam)[0, 0], truth, no_clip)[0])
-    out = []
-    for name, d in dists.items():
-        t = torch.tensor(d)
-        out.append((name, float((t <= PEAK_TOLERANCE_PX).float().mean()), float(t.median())))
-    return out
+                dists[name].append(score(ggx.render_maps(perturb(maps), light, view)[0, 0], truth, no_clip)[0])
+    rows = [(name, *peak_stats(d)) for name, d in dists.items()]
+    return rows, len(next(iter(dists.values())))
 
 
 def oracle_markdown(rows: list[tuple[str, float, float]], size: int, cases: int, seconds: float) -> str:
@@ -142,23 +151,18 @@ def score(pred: torch.Tensor, truth: torch.Tensor, clipped: torch.Tensor) -> tup
 def run(model, size: int = REFERENCE_SIZE, count: int | None = None) -> dict[str, dict[str, float]]:
     """Pass rates and medians for the model (if given) and the diffuse fit, over the first ``count``
     test sets (default all)."""
-    files = materials.list_files("test")[:count]
     res: dict[str, list[tuple[float, float | None]]] = (
         {"model": [], "diffuse fit": []} if model else {"diffuse fit": []}
     )
-    cam = ggx.capture_position()
-    for i, path in enumerate(files):
-        maps = glossy(materials.load_maps(path, size), i)
+    view = ggx.capture_position().view(1, 1, 3)
+    for maps, cases in glossy_sets(size, count):
         photo = ggx.ldr_capture(ggx.render_capture(maps))
         clipped = ggx.clipped(photo[0])
         params = None
         if model is not None:
             with torch.no_grad():
                 params = model.estimate(ggx.network_input(photo, model.config.log_mode))
-        for light_xyz in MOVED_LIGHTS:
-            light = torch.tensor(light_xyz).view(1, 1, 3)
-            view = cam.view(1, 1, 3)
-            truth = ggx.render_maps(maps, light, view)[0, 0]
+        for light, truth in cases:
             wi, wo, _ = ggx.directions(light, view, size, size)
             res["diffuse fit"].append(score(diffuse_fit(photo, wi)[0, 0], truth, clipped))
             if params is not None:
@@ -167,13 +171,13 @@ def run(model, size: int = REFERENCE_SIZE, count: int | None = None) -> dict[str
                 res["model"].append(score(pred, truth, clipped))
     out = {}
     for method, rows in res.items():
-        dists = torch.tensor([d for d, _ in rows])
+        within, median = peak_stats([d for d, _ in rows])
         ratios = torch.tensor([r for _, r in rows if r is not None])
         ok = (ratios >= CLIPPED_RATIO[0]) & (ratios <= CLIPPED_RATIO[1])
         out[method] = {
             "cases": len(rows),
-            "peak_within": float((dists <= PEAK_TOLERANCE_PX).float().mean()),
-            "peak_median_px": float(dists.median()),
+            "peak_within": within,
+            "peak_median_px": median,
             "clipped_cases": len(ratios),
             "clipped_within": float(ok.float().mean()) if len(ratios) else float("nan"),
             "clipped_ratio_median": float(ratios.median()) if len(ratios) else float("nan"),
@@ -217,8 +221,7 @@ def main(argv: list[str] | None = None) -> None:
         torch.set_num_threads(args.threads)
     if args.oracle:
         t0 = time.time()
-        rows = oracle(args.size, args.materials)
-        cases = len(materials.list_files("test")[: args.materials]) * len(MOVED_LIGHTS)
+        rows, cases = oracle(args.size, args.materials)
         md = oracle_markdown(rows, args.size, cases, time.time() - t0)
         print(md)
         if args.output:

@@ -71,7 +71,9 @@ def test_blurred_peak_finds_a_moved_highlight_and_the_clipped_ratio():
 def test_highlight_oracle_scores_perturbed_true_maps_and_flat_normals_miss_peaks():
     # Two glossy test sets at 64²: every perturbation is scored on the 8 cases; a specular scale
     # leaves every peak in place, while flat normals move some of them.
-    rows = {name: (share, median) for name, share, median in highlights.oracle(64, 2)}
+    table, cases = highlights.oracle(64, 2)
+    assert cases == 8
+    rows = {name: (share, median) for name, share, median in table}
     assert list(rows) == [name for name, _ in highlights.PERTURBATIONS]
     assert rows["specular × 1.5"][0] == 1.0
     assert rows["normals flat"][0] < 1.0 and rows["normals flat"][1] > 0.0
