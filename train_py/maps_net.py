@@ -50,6 +50,14 @@ class MapsNet(nn.Module):
         return self.probe(self.est(net_input))
 
 
+def tilt_unexplained(normal: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+    """Squared error of the normal's x, y against the truth's over the truth's own squared tilt
+    (a flat guess scores 1, the truth 0): the mean regression of a weak signal. Under L1 alone a
+    normal map that is only partly predictable from the photo is learnt as its median, flat."""
+    err = (normal[..., :2] - truth[..., :2]).square().sum()
+    return err / truth[..., :2].square().sum().clamp(min=1e-8)
+
+
 def build(init_from: str | None, width: int) -> tuple[MapsNet, bool]:
     """The net, with its U-Net copied from a model file when given; and whether its BatchNorms
     stay frozen (they do for a folded model file, as in ``train --init-from``)."""
@@ -68,7 +76,7 @@ def score_maps(net: MapsNet, size: int = SCORE_SIZE, count: int | None = None) -
     GGX renders with the estimated normals (and roughness) in place of the true ones."""
     net.eval()
     view = ggx.capture_position().view(1, 1, 3)
-    sums = {"normal": 0.0, "normal_flat": 0.0, "rough": 0.0, "rough_median": 0.0}
+    sums = {"normal": 0.0, "normal_flat": 0.0, "tilt": 0.0, "rough": 0.0, "rough_median": 0.0}
     dists: dict[str, list[float]] = {"normals": [], "normals + roughness": [], "flat normals": []}
     sets = 0
     for maps, cases in glossy_sets(size, count):
@@ -78,6 +86,7 @@ def score_maps(net: MapsNet, size: int = SCORE_SIZE, count: int | None = None) -
         flat = torch.tensor([0.0, 0.0, 1.0]).expand_as(maps["normal"])
         sums["normal"] += float((normal - maps["normal"]).abs().mean())
         sums["normal_flat"] += float((flat - maps["normal"]).abs().mean())
+        sums["tilt"] += float(tilt_unexplained(normal, maps["normal"]))
         sums["rough"] += float((rough - maps["roughness"]).abs().mean())
         sums["rough_median"] += float((maps["roughness"].median() - maps["roughness"]).abs().mean())
         sets += 1
@@ -107,6 +116,7 @@ def markdown(res: dict[str, float], source: str, size: int) -> str:
         f"{source} --size {size}`.",
         "",
         f"- normal L1 (per component) {res['normal']:.4f}; flat normals {res['normal_flat']:.4f}",
+        f"- normal tilt unexplained (squared x, y error over the true tilt's; flat = 1) {res['tilt']:.3f}",
         f"- roughness L1 {res['rough']:.4f}; each material's median {res['rough_median']:.4f}",
         "",
         "| GGX render of the true maps, except | peak within 10 px | median peak error (px, 256²) |",
@@ -165,6 +175,8 @@ def train(args) -> None:
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.bf16):
             params = net.est(net_input)
         loss = maps_l1(net.probe, params, maps)
+        if args.tilt_weight:
+            loss = loss + args.tilt_weight * tilt_unexplained(net.probe(params)[0], maps["normal"])
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -211,6 +223,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--lr", type=float, default=3e-4)
     ap.add_argument("--lr-final", type=float, default=1e-5)
     ap.add_argument("--seed", type=int, default=70)
+    ap.add_argument("--tilt-weight", type=float, default=0.0, help="weight of the normals' relative squared tilt error")
     ap.add_argument("--bf16", action="store_true", help="bf16 autocast for the U-Net")
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--log-every", type=int, default=25)

@@ -42,3 +42,11 @@ def test_maps_net_training_writes_a_checkpoint_that_resumes_and_scores(tmp_path)
     scored = [sys.executable, "-m", "train_py.maps_net", "--score", str(tmp_path / "ckpt.pt"), "--size", "32"]
     subprocess.run([*scored, "-o", str(out)], cwd=REPO, check=True, capture_output=True, timeout=120)
     assert "estimated normals + roughness" in out.read_text()
+
+
+def test_tilt_unexplained_is_one_for_flat_normals_and_zero_for_the_truth():
+    truth = torch.nn.functional.normalize(torch.randn(2, 8, 8, 3) * 0.1 + torch.tensor([0.0, 0.0, 1.0]), dim=-1)
+    flat = torch.tensor([0.0, 0.0, 1.0]).expand_as(truth)
+    assert float(maps_net.tilt_unexplained(flat, truth)) == 1.0
+    assert float(maps_net.tilt_unexplained(truth, truth)) == 0.0
+    assert abs(float(maps_net.tilt_unexplained(0.5 * truth, truth)) - 0.25) < 1e-6
