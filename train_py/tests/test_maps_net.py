@@ -24,7 +24,8 @@ def test_maps_net_starts_from_the_model_files_unet_and_scores_like_the_oracle():
     res = maps_net.score_maps(net, size=64, count=2)
     oracle = dict((name, share) for name, share, _ in highlights.oracle(64, 2)[0])
     assert res["cases"] == 8 and res["peak flat normals"] == oracle["normals flat"]
-    assert all(torch.isfinite(torch.tensor(v)) for v in res.values())
+    res["tilt_real"], res["tilt_procedural"] = maps_net.heldout_tilt(net, 1.0), maps_net.heldout_tilt(net, 0.0)
+    assert all(torch.isfinite(torch.tensor(v)) for v in res.values()) and res["tilt_real"] > 0
     md = maps_net.markdown(res, "x.pt", 64)
     assert "| estimated normals |" in md and "| flat normals |" in md
 
