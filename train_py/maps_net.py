@@ -113,13 +113,14 @@ HELDOUT_BATCHES = (4, 8, 96)
 
 
 @torch.no_grad()
-def heldout_tilt(net: MapsNet, real_frac: float) -> float:
+def heldout_tilt(net: MapsNet, real_frac: float, root: Path = materials.DEFAULT_ROOT) -> float:
     """Mean :func:`tilt_unexplained` over :data:`HELDOUT_BATCHES` phone captures drawn like the
     training data (materials from ``materials/train`` with share ``real_frac``, the rest
-    procedural), from seeds at ``gen.HELD_OUT_SEED_BASE`` that training never draws."""
+    procedural; ``root``: the material sets), from seeds at ``gen.HELD_OUT_SEED_BASE`` that training
+    never draws."""
     net.eval()
     count, batch, side = HELDOUT_BATCHES
-    bank = materials.MaterialBank("train") if real_frac > 0 else None
+    bank = materials.MaterialBank("train", root) if real_frac > 0 else None
     total = 0.0
     for b in range(count):
         seeds = [gen.HELD_OUT_SEED_BASE + batch * b + i for i in range(batch)]
@@ -197,9 +198,10 @@ def train(args) -> None:
             freeze_batchnorm(net)
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.bf16):
             params = net.est(net_input)
-        loss = maps_l1(net.probe, params, maps)
+        normal, rough = net.probe(params)
+        loss = maps_l1(normal, rough, maps)
         if args.tilt_weight:
-            loss = loss + args.tilt_weight * tilt_unexplained(net.probe(params)[0], maps["normal"])
+            loss = loss + args.tilt_weight * tilt_unexplained(normal, maps["normal"])
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -258,7 +260,8 @@ def main(argv: list[str] | None = None) -> None:
         t0 = time.time()
         net = load_net(args.score)
         res = score_maps(net, args.size)
-        res["tilt_real"], res["tilt_procedural"] = heldout_tilt(net, 1.0), heldout_tilt(net, 0.0)
+        root = Path(args.materials_root)
+        res["tilt_real"], res["tilt_procedural"] = heldout_tilt(net, 1.0, root), heldout_tilt(net, 0.0, root)
         text = markdown(res, args.score, args.size)
         print(text + f"\n({time.time() - t0:.0f} s)")
         if args.output:

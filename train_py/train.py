@@ -331,10 +331,9 @@ class MapProbe(nn.Module):
         return out[:, :3].permute(0, 2, 3, 1), torch.nn.functional.softplus(out[:, 3])
 
 
-def maps_l1(probe: MapProbe, params: torch.Tensor, maps: dict[str, torch.Tensor]) -> torch.Tensor:
-    """Dense L1 of the probe's normals and roughness against the true maps (mean over pixels; the
-    normal's three components and the roughness weigh the same)."""
-    normal, rough = probe(params)
+def maps_l1(normal: torch.Tensor, rough: torch.Tensor, maps: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Dense L1 of a :class:`MapProbe`'s normals and roughness against the true maps (mean over
+    pixels; the normal's three components and the roughness weigh the same)."""
     err = (normal - maps["normal"]).abs().sum(-1) + (rough - maps["roughness"]).abs()
     return err.mean() / 4
 
@@ -624,7 +623,7 @@ def train(args) -> dict:
             loss = loss + args.latent_weight * latent_l1(trainer.last_params, encoder, maps)
         maps_err = None
         if probe is not None:
-            maps_err = maps_l1(probe, trainer.last_params, maps)
+            maps_err = maps_l1(*probe(trainer.last_params), maps)
             loss = loss + args.maps_weight * maps_err
         if args.bottleneck_limit:
             loss = loss + bottleneck_excess(model.est.last_bottleneck, args.bottleneck_limit)

@@ -396,9 +396,9 @@ def test_map_probe_learns_the_normals_from_params_and_its_run_resumes_only_with_
     with torch.no_grad():
         probe.net[2].bias[2] = -3.0
     opt = torch.optim.Adam(probe.parameters(), lr=1e-2)
-    first = float(maps_l1(probe, params, maps))
+    first = float(maps_l1(*probe(params), maps))
     for _ in range(300):
-        loss = maps_l1(probe, params, maps)
+        loss = maps_l1(*probe(params), maps)
         opt.zero_grad()
         loss.backward()
         opt.step()
