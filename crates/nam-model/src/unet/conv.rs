@@ -4,7 +4,7 @@
 
 use rayon::prelude::*;
 
-use super::direct;
+use super::{direct, winograd};
 use crate::sgemm::{Mat, sgemm, sgemm_into_transposed};
 
 /// Output pixels per GEMM band: enough rows for the GEMM kernel, small enough
@@ -103,7 +103,9 @@ impl PackedConv {
     /// has AVX-512F/VL (faster at every width here, 4 outputs included: docs/perf/unet_cpu.md),
     /// else im2col + GEMM.
     pub(super) fn run_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
-        if direct::available() {
+        if winograd::applies(self, x) {
+            winograd::run_rows(self, x, wt, rows)
+        } else if direct::available() {
             direct::run_rows(self, x, wt, rows, self.bf16)
         } else {
             self.im2col_rows(x, wt, rows)

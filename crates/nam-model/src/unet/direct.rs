@@ -148,6 +148,51 @@ fn run_rows_with<E: Operand>(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range
     }
 }
 
+/// The register tiles as a pixel-major GEMM, `dst[p][..cout] = Σ_e a[p][e]·w[e][..cout]` for
+/// `w` = `[cin, cout]`, packed once for many calls (the products of `winograd.rs`).
+pub(super) struct Gemm {
+    cin: usize,
+    cout: usize,
+    groups: Vec<Range<usize>>,
+    packed: Vec<Vec<f32>>,
+}
+
+impl Gemm {
+    pub(super) fn new(w: &[f32], cin: usize, cout: usize) -> Self {
+        assert_eq!(w.len(), cin * cout);
+        let groups = column_groups(cout);
+        let packed = groups
+            .iter()
+            .map(|g| pack_with(w, (cin, cout, g.clone()), 1, |v| v[0]))
+            .collect();
+        Self {
+            cin,
+            cout,
+            groups,
+            packed,
+        }
+    }
+
+    /// Writes `dst` (`n·cout`) from the `n` rows of `a` (`n·cin`). Only where [`available`].
+    pub(super) fn run(&self, a: &[f32], n: usize, dst: &mut [f32]) {
+        assert!(available(), "direct GEMM without AVX-512F/VL");
+        assert!(n > 0 && a.len() >= n * self.cin && dst.len() >= n * self.cout);
+        #[cfg(target_arch = "x86_64")]
+        for (g, w) in self.groups.iter().zip(&self.packed) {
+            let tile = Tile {
+                taps: &[0],
+                ce: self.cin,
+                px_step: self.cin,
+                w,
+                cols: g.clone(),
+                cout: self.cout,
+            };
+            // SAFETY: AVX-512F/VL asserted; `tile.row` checks its bounds.
+            unsafe { tile.row(a, dst, n) };
+        }
+    }
+}
+
 /// Column groups of at most this many columns run on 8-lane registers.
 const NARROW: usize = 8;
 

@@ -15,6 +15,7 @@ use crate::maps::ParamMap;
 mod blocks;
 mod conv;
 mod direct;
+mod winograd;
 
 use blocks::{Basic, Reverse};
 use conv::{Hwc, PackedConv, concat};
