@@ -64,18 +64,19 @@ const AT: [[f32; A]; M] = [
 /// Bytes of one band's transformed tiles (`V` and `M`), about: they stay in L2.
 const BAND_BYTES: usize = 512 * 1024;
 
-/// Whether `conv` on `x` runs here rather than on the direct tiles: a stride-1 3×3 f32 conv
-/// where the CPU has AVX-512F/VL, with enough output channels that the products outweigh the
-/// transforms, and enough tiles that each transformed weight matrix serves many of them
-/// (thresholds measured per shape of the U-Net: docs/perf/unet_cpu.md).
+/// Whether `conv` on `x` runs here rather than on the direct tiles: a stride-1 f32 conv with an
+/// odd kernel and "same" padding where the CPU has AVX-512F/VL, with enough output channels that
+/// the products outweigh the transforms, and enough tiles that each transformed weight matrix
+/// serves many of them (thresholds measured per shape of the U-Net: docs/perf/unet_cpu.md).
 pub(super) fn applies(conv: &PackedConv, x: &Hwc) -> bool {
     let tiles = x.h.div_ceil(M) * x.w.div_ceil(M);
-    conv.k == 3
+    conv.k % 2 == 1
+        && conv.k >= 3
         && conv.stride == 1
-        && conv.pad == 1
+        && conv.pad == conv.k / 2
         && !conv.bf16
         && conv.cout >= MIN_COUT
-        && tiles >= TILES_PER_CIN * conv.cin
+        && tiles >= TILES_PER_CIN * blocks(conv.k).pow(2) * conv.cin
         && direct::available()
 }
 
@@ -83,26 +84,48 @@ pub(super) fn applies(conv: &PackedConv, x: &Hwc) -> bool {
 /// as much as the products it saves).
 const MIN_COUT: usize = 24;
 
-/// Tiles per input channel below which the direct tiles are faster (the weight transform and
-/// packing, `36·cin·cout` values per call, outweigh the products saved).
+/// Tiles per row of a transformed weight matrix below which the direct tiles are faster (the
+/// weight transform and packing, `36·K·cout` values per call, outweigh the products saved).
 const TILES_PER_CIN: usize = 4;
 
-/// `U[point] = G·g·Gᵀ` of the packed weights `wt` (`[tap][ci][co]`), as `[point][ci][co]`:
-/// each point is a fixed combination of the 9 taps (coefficients `G[i][ky]·G[j][kx]`, rounded
-/// from f64), summed over whole `cin·cout` rows.
-fn transform_weights(wt: &[f32], cin: usize, cout: usize) -> Vec<f32> {
-    let n = cin * cout;
-    let mut u = vec![0.0f32; POINTS * n];
-    u.par_chunks_mut(n).enumerate().for_each(|(p, dst)| {
-        let (i, j) = (p / A, p % A);
-        for (tap, src) in wt.chunks_exact(n).enumerate() {
-            let c = (G[i][tap / 3] * G[j][tap % 3]) as f32;
-            if c != 0.0 {
-                // SAFETY: AVX-512F, asserted by `run_rows` before any call.
-                unsafe { axpy(dst, c, src) };
+/// 3×3 blocks per side of a k×k kernel: a larger kernel runs as `blocks²` 3×3 convolutions of
+/// shifted inputs (the kernel zero-padded to `3·blocks`, `lead` zero rows and columns first), whose
+/// products are summed before the output transform: one GEMM with `K = blocks²·cin`.
+fn blocks(k: usize) -> usize {
+    k.div_ceil(3)
+}
+
+/// Zero rows (and columns) before the kernel in its `3·blocks` padding.
+fn lead(k: usize) -> usize {
+    (3 * blocks(k) - k) / 2
+}
+
+/// `U[point] = G·g·Gᵀ` of every 3×3 block `g` of the packed weights `wt` (`[tap][ci][co]`, k×k
+/// taps), as `[point][block][ci][co]`: each point of a block is a fixed combination of its taps
+/// (coefficients `G[i][r]·G[j][s]`, rounded from f64), summed over whole `cin·cout` rows.
+fn transform_weights(wt: &[f32], k: usize, cin: usize, cout: usize) -> Vec<f32> {
+    let (n, nb, lead) = (cin * cout, blocks(k), lead(k));
+    let mut u = vec![0.0f32; POINTS * nb * nb * n];
+    u.par_chunks_mut(nb * nb * n)
+        .enumerate()
+        .for_each(|(p, dst)| {
+            let (i, j) = (p / A, p % A);
+            for (blk, dst) in dst.chunks_exact_mut(n).enumerate() {
+                for (r, s) in (0..9).map(|t| (t / 3, t % 3)) {
+                    let ky = (3 * (blk / nb) + r).checked_sub(lead).filter(|&v| v < k);
+                    let kx = (3 * (blk % nb) + s).checked_sub(lead).filter(|&v| v < k);
+                    let (Some(ky), Some(kx)) = (ky, kx) else {
+                        continue;
+                    };
+                    let c = (G[i][r] * G[j][s]) as f32;
+                    if c != 0.0 {
+                        let tap = ky * k + kx;
+                        // SAFETY: AVX-512F, asserted by `run_rows` before any call.
+                        unsafe { axpy(dst, c, &wt[tap * n..(tap + 1) * n]) };
+                    }
+                }
             }
-        }
-    });
+        });
     u
 }
 
@@ -117,26 +140,32 @@ unsafe fn axpy(dst: &mut [f32], c: f32, src: &[f32]) {
     }
 }
 
-/// Output rows `rows` of `conv` (stride 1, 3×3, replicate padding 1) applied to `x` with weights
-/// `wt`: the values of [`PackedConv::run_rows`] within `WINOGRAD_TOL`; [`applies`] says where it is faster.
+/// Output rows `rows` of `conv` (stride 1, odd k×k, replicate padding k/2) applied to `x` with
+/// weights `wt`: the values of [`PackedConv::run_rows`] within `WINOGRAD_TOL`; [`applies`] says
+/// where it is faster.
 pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> Hwc {
     assert!(
         direct::available(),
         "Winograd convolution without AVX-512F/VL"
     );
-    assert!((conv.k, conv.stride, conv.pad) == (3, 1, 1) && conv.cin <= x.c);
-    assert_eq!(wt.len(), 9 * conv.cin * conv.cout);
-    let (cin, cout) = (conv.cin, conv.cout);
+    let (k, cin, cout) = (conv.k, conv.cin, conv.cout);
+    assert!(k % 2 == 1 && conv.stride == 1 && conv.pad == k / 2 && cin <= x.c);
+    assert_eq!(wt.len(), k * k * cin * cout);
     let (ho, wo) = conv.out_size(x);
     assert!(rows.end <= ho && !rows.is_empty());
-    let u = transform_weights(wt, cin, cout);
+    let nb = blocks(k);
+    // Rows of each transformed weight matrix: every block's input channels.
+    let kk = nb * nb * cin;
+    let u = transform_weights(wt, k, cin, cout);
     let gemms: Vec<Gemm> = u
-        .chunks_exact(cin * cout)
-        .map(|u| Gemm::new(u, cin, cout))
+        .chunks_exact(kk * cout)
+        .map(|u| Gemm::new(u, kk, cout))
         .collect();
+    // Input offset of block (by, bx)'s tile from its output tile, per side.
+    let shift = |b: usize| (3 * b) as isize - (conv.pad + lead(k)) as isize;
     let tiles_x = wo.div_ceil(M);
     let tile_rows = rows.len().div_ceil(M);
-    let per_tile_row = POINTS * (cin + cout) * 4 * tiles_x;
+    let per_tile_row = POINTS * (kk + cout) * 4 * tiles_x;
     let band = (BAND_BYTES / per_tile_row).clamp(
         1,
         tile_rows.div_ceil(4 * rayon::current_num_threads()).max(1),
@@ -148,25 +177,27 @@ pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize
             let y0 = rows.start + b * band;
             let n_rows = dst.len() / (wo * cout);
             let tiles = n_rows.div_ceil(M) * tiles_x;
-            s.v.resize(POINTS * tiles * cin, 0.0);
+            s.v.resize(POINTS * tiles * kk, 0.0);
             s.m.resize(POINTS * tiles * cout, 0.0);
             #[cfg(target_arch = "x86_64")]
             for t in 0..tiles {
-                let (ty, tx) = (t / tiles_x, t % tiles_x);
-                // SAFETY: AVX-512F asserted above; `s.v` sized for `tiles`.
-                unsafe { input_tile(x, cin, (y0 + ty * M, tx * M), &mut s.v, (t, tiles)) };
+                let (oy, ox) = (y0 + t / tiles_x * M, t % tiles_x * M);
+                for blk in 0..nb * nb {
+                    let at = (oy as isize + shift(blk / nb), ox as isize + shift(blk % nb));
+                    // SAFETY: AVX-512F asserted above; `s.v` sized for `tiles` rows of `kk`.
+                    unsafe { input_tile(x, cin, at, &mut s.v, (t, tiles), (kk, blk * cin)) };
+                }
             }
             for (p, g) in gemms.iter().enumerate() {
                 g.run(
-                    &s.v[p * tiles * cin..(p + 1) * tiles * cin],
+                    &s.v[p * tiles * kk..(p + 1) * tiles * kk],
                     tiles,
                     &mut s.m[p * tiles * cout..(p + 1) * tiles * cout],
                 );
             }
             #[cfg(target_arch = "x86_64")]
             for t in 0..tiles {
-                let (ty, tx) = (t / tiles_x, t % tiles_x);
-                let at = (ty * M, tx * M);
+                let at = (t / tiles_x * M, t % tiles_x * M);
                 // SAFETY: AVX-512F asserted above; `s.m` sized for `tiles`.
                 unsafe { output_tile(&s.m, (t, tiles), cout, dst, at, (n_rows, wo)) };
             }
@@ -207,25 +238,28 @@ fn combine(c: &[f32; A], v: &[std::arch::x86_64::__m512; A]) -> std::arch::x86_6
     }
 }
 
-/// `V[point][t]` of the tile whose output starts at `(oy, ox)`: `Bᵀ·d·B` of the 6×6 input pixels
-/// from `(oy − 1, ox − 1)`, replicate-padded (rows and columns clamped to `x`), 16 channels at a
-/// time (masked loads and stores for the last block).
+/// `V[point][t][c0..c0 + cin]` (rows of `ld` values): `Bᵀ·d·B` of the 6×6 input pixels from
+/// `(iy, ix)` (may lie outside `x`: rows and columns are clamped, i.e. replicate padding), 16
+/// channels at a time (masked loads and stores for the last block).
 ///
 /// # Safety
-/// AVX-512F; `v` holds `POINTS · tiles · cin` values and `t < tiles`.
+/// AVX-512F; `v` holds `POINTS · tiles · ld` values, `t < tiles`, `c0 + cin ≤ ld`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[allow(clippy::needless_range_loop)]
 unsafe fn input_tile(
     x: &Hwc,
     cin: usize,
-    (oy, ox): (usize, usize),
+    (iy, ix): (isize, isize),
     v: &mut [f32],
     (t, tiles): (usize, usize),
+    (ld, c_at): (usize, usize),
 ) {
     use std::arch::x86_64::*;
-    let rows: [usize; A] = std::array::from_fn(|a| (oy + a).saturating_sub(1).min(x.h - 1) * x.w);
-    let cols: [usize; A] = std::array::from_fn(|b| (ox + b).saturating_sub(1).min(x.w - 1));
+    assert!(t < tiles && c_at + cin <= ld && v.len() >= POINTS * tiles * ld && x.h * x.w > 0);
+    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    let rows: [usize; A] = std::array::from_fn(|a| clamp(iy + a as isize, x.h) * x.w);
+    let cols: [usize; A] = std::array::from_fn(|b| clamp(ix + b as isize, x.w));
     let src = x.d.as_ptr();
     let dst = v.as_mut_ptr();
     for c0 in (0..cin).step_by(LANES) {
@@ -248,7 +282,11 @@ unsafe fn input_tile(
                 let p = i * A + j;
                 // SAFETY: point p of tile t, channels c0.. masked to cin: inside `v`.
                 unsafe {
-                    _mm512_mask_storeu_ps(dst.add((p * tiles + t) * cin + c0), k, combine(bt, &col))
+                    _mm512_mask_storeu_ps(
+                        dst.add((p * tiles + t) * ld + c_at + c0),
+                        k,
+                        combine(bt, &col),
+                    )
                 };
             }
         }
@@ -319,24 +357,27 @@ mod tests {
             eprintln!("no AVX-512F/VL: Winograd not tested");
             return;
         }
-        // (cin, x.c, cout, h, w): partial tiles in both directions, a view of wider channels,
-        // images smaller than a tile, every column-group shape.
+        // (k, cin, x.c, cout, h, w): partial tiles in both directions, a view of wider channels,
+        // images smaller than a tile, every column-group shape; 7×7 as 3×3 blocks.
         let cases = [
-            (8, 8, 28, 19, 23),
-            (8, 36, 4, 9, 5),
-            (16, 16, 72, 16, 18),
-            (64, 64, 224, 8, 8),
-            (24, 24, 160, 6, 13),
-            (8, 8, 17, 1, 1),
-            (12, 12, 12, 3, 2),
-            (32, 32, 112, 33, 31),
+            (3, 8, 8, 28, 19, 23),
+            (3, 8, 36, 4, 9, 5),
+            (3, 16, 16, 72, 16, 18),
+            (3, 64, 64, 224, 8, 8),
+            (3, 24, 24, 160, 6, 13),
+            (3, 8, 8, 17, 1, 1),
+            (3, 12, 12, 12, 3, 2),
+            (3, 32, 32, 112, 33, 31),
+            (7, 12, 12, 64, 21, 18),
+            (7, 4, 4, 8, 3, 9),
+            (5, 6, 6, 20, 7, 10),
         ];
-        for (n, &(cin, xc, cout, h, w)) in cases.iter().enumerate() {
-            let wt: Vec<f32> = (0..9 * cin * cout).map(|i| det(i, n)).collect();
+        for (n, &(k, cin, xc, cout, h, w)) in cases.iter().enumerate() {
+            let wt: Vec<f32> = (0..k * k * cin * cout).map(|i| det(i, n)).collect();
             let conv = PackedConv {
-                k: 3,
+                k,
                 stride: 1,
-                pad: 1,
+                pad: k / 2,
                 cin,
                 cout,
                 wt,
