@@ -181,7 +181,8 @@ impl UNet {
     /// last BasicBlocks of the decoder (per pixel their input, first HA-Conv output, centred
     /// copy, output and the skip `e1`: ≈ 9·C floats; plus one band of an HA-Conv's fused GEMM
     /// and inc1b, ≈ 8·C floats for up to [`blocks::HA_BAND_PIXELS`] pixels) or the head (its
-    /// 64 outputs and its input). On top, each rayon thread's im2col band. `tests/memory.rs` checks it against a
+    /// 64 outputs and its input). On top, each rayon thread's conv scratch: its direct band or
+    /// Winograd piece, or its im2col band. `tests/memory.rs` checks it against a
     /// counting allocator (docs/perf/unet_memory.md).
     pub fn peak_bytes(&self, height: usize, width: usize) -> u64 {
         let (hp, wp) = (pad_multiple(height), pad_multiple(width));
@@ -195,17 +196,26 @@ impl UNet {
         // input of a level: the 7×7 head or stem, dec4's 3·C at full size, then 2·C, 4·C and
         // 8·C channels at 1/2, 1/4 and 1/8 of the side), else one im2col band, whose widest row
         // is the 7×7 stem's or head's, or a 3×3 conv's over 12·C channels (dec2).
+        let threads = rayon::current_num_threads();
         let scratch = if direct::available() {
-            [(wp, 7, head_in.max(i)), (wp, 3, 3 * c), (wp / 2, 3, 2 * c)]
+            let direct = [(wp, 7, head_in.max(i)), (wp, 3, 3 * c), (wp / 2, 3, 2 * c)]
                 .into_iter()
                 .chain([(wp / 4, 3, 4 * c), (wp / 8, 3, 8 * c)])
                 .map(|(w, k, ch)| direct::scratch_floats(w, k, ch))
                 .max()
-                .unwrap_or(0)
+                .unwrap_or(0);
+            // Or (one conv runs at a time) a Winograd conv's transformed weights and one piece
+            // per thread, at a full-resolution stage, where the peak is (deeper levels hold a
+            // quarter of the activations or less): the 7×7 head, or dec4's fused HA-Conv
+            // columns (3·C inputs, 4.5·C outputs).
+            let winograd = [(7, head_in, self.params), (3, 3 * c, 9 * c / 2)].map(|(k, ci, co)| {
+                winograd::weight_floats(k, ci, co) + threads * winograd::scratch_floats(k, ci, co)
+            });
+            (threads * direct).max(winograd[0]).max(winograd[1])
         } else {
-            conv::BAND_PIXELS.max(wp) * (49 * head_in).max(49 * i).max(9 * 12 * c)
+            threads * conv::BAND_PIXELS.max(wp) * (49 * head_in).max(49 * i).max(9 * 12 * c)
         };
-        4 * (decoder.max(head) + rayon::current_num_threads() * scratch) as u64
+        4 * (decoder.max(head) + scratch) as u64
     }
 
     /// Runs `M_est` on the network input (CHW, `in_channels × height × width`,

@@ -61,8 +61,30 @@ const AT: [[f32; A]; M] = [
     [0.0, -1.0, 1.0, 0.125, -8.0, 1.0],
 ];
 
-/// Bytes of one band's transformed tiles (`V` and `M`), about: they stay in L2.
+/// Bytes of one piece of a band's transformed tiles (`V` and `M`), about: they stay in L2.
 const BAND_BYTES: usize = 512 * 1024;
+
+/// Tiles per piece at least, so that each transformed weight matrix serves that many tiles.
+const MIN_PIECE_TILES: usize = 32;
+
+/// Tiles per piece for `K = kk` GEMM rows and `cout` columns ([`BAND_BYTES`], at least
+/// [`MIN_PIECE_TILES`]).
+fn band_tiles(kk: usize, cout: usize) -> usize {
+    (BAND_BYTES / (POINTS * (kk + cout) * 4)).max(MIN_PIECE_TILES)
+}
+
+/// Floats of the transformed weights of a k×k conv with `cin` inputs and `cout` outputs that
+/// [`run_rows`] holds during a call: `U` and its packed copy (columns padded to whole vectors).
+pub(super) fn weight_floats(k: usize, cin: usize, cout: usize) -> usize {
+    POINTS * blocks(k).pow(2) * cin * (cout + cout.next_multiple_of(LANES))
+}
+
+/// Floats of one rayon task's Winograd buffers, at most, for a k×k conv with `cin` inputs and
+/// `cout` outputs.
+pub(super) fn scratch_floats(k: usize, cin: usize, cout: usize) -> usize {
+    let kk = blocks(k).pow(2) * cin;
+    POINTS * band_tiles(kk, cout) * (kk + cout)
+}
 
 /// Whether `conv` on `x` runs here rather than on the direct tiles: a stride-1 f32 conv with an
 /// odd kernel and "same" padding where the CPU has AVX-512F/VL, with enough output channels that
@@ -164,42 +186,59 @@ pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize
     // Input offset of block (by, bx)'s tile from its output tile, per side.
     let shift = |b: usize| (3 * b) as isize - (conv.pad + lead(k)) as isize;
     let tiles_x = wo.div_ceil(M);
-    let tile_rows = rows.len().div_ceil(M);
-    let per_tile_row = POINTS * (kk + cout) * 4 * tiles_x;
-    let band = (BAND_BYTES / per_tile_row).clamp(
+    // A band is `band` output rows (one rayon task), worked in pieces of at most `piece` tiles
+    // along a row of tiles, so that a piece's `V` and `M` stay near [`BAND_BYTES`].
+    let piece = band_tiles(kk, cout);
+    let rows_of_tiles = (piece / tiles_x).clamp(
         1,
-        tile_rows.div_ceil(4 * rayon::current_num_threads()).max(1),
-    ) * M;
+        rows.len()
+            .div_ceil(M)
+            .div_ceil(4 * rayon::current_num_threads())
+            .max(1),
+    );
+    let band = rows_of_tiles * M;
     let mut out = vec![0.0f32; rows.len() * wo * cout];
     out.par_chunks_mut(band * wo * cout)
         .enumerate()
         .for_each_init(Scratch::default, |s, (b, dst)| {
             let y0 = rows.start + b * band;
             let n_rows = dst.len() / (wo * cout);
-            let tiles = n_rows.div_ceil(M) * tiles_x;
-            s.v.resize(POINTS * tiles * kk, 0.0);
-            s.m.resize(POINTS * tiles * cout, 0.0);
-            #[cfg(target_arch = "x86_64")]
-            for t in 0..tiles {
-                let (oy, ox) = (y0 + t / tiles_x * M, t % tiles_x * M);
-                for blk in 0..nb * nb {
-                    let at = (oy as isize + shift(blk / nb), ox as isize + shift(blk % nb));
-                    // SAFETY: AVX-512F asserted above; `s.v` sized for `tiles` rows of `kk`.
-                    unsafe { input_tile(x, cin, at, &mut s.v, (t, tiles), (kk, blk * cin)) };
+            let ty = n_rows.div_ceil(M);
+            for tx in (0..tiles_x).step_by(piece.div_ceil(ty).max(1)) {
+                let tw = piece.div_ceil(ty).max(1).min(tiles_x - tx);
+                let tiles = ty * tw;
+                // The tile at (i, j) of this piece: output pixel (i·M, (tx + j)·M) of the band.
+                let at = |t: usize| (t / tw * M, (tx + t % tw) * M);
+                {
+                    s.v.resize(POINTS * tiles * kk, 0.0);
+                    s.m.resize(POINTS * tiles * cout, 0.0);
+                    #[cfg(target_arch = "x86_64")]
+                    for t in 0..tiles {
+                        let (oy, ox) = at(t);
+                        for blk in 0..nb * nb {
+                            let origin = (
+                                (y0 + oy) as isize + shift(blk / nb),
+                                ox as isize + shift(blk % nb),
+                            );
+                            // SAFETY: AVX-512F asserted above; `s.v` sized for `tiles` rows of `kk`.
+                            unsafe {
+                                input_tile(x, cin, origin, &mut s.v, (t, tiles), (kk, blk * cin));
+                            }
+                        }
+                    }
+                    for (p, g) in gemms.iter().enumerate() {
+                        g.run(
+                            &s.v[p * tiles * kk..(p + 1) * tiles * kk],
+                            tiles,
+                            &mut s.m[p * tiles * cout..(p + 1) * tiles * cout],
+                        );
+                    }
+                    #[cfg(target_arch = "x86_64")]
+                    for t in 0..tiles {
+                        // SAFETY: AVX-512F asserted above; `s.m` sized for `tiles`.
+                        unsafe { output_tile(&s.m, (t, tiles), cout, dst, at(t), (n_rows, wo)) };
+                    }
                 }
-            }
-            for (p, g) in gemms.iter().enumerate() {
-                g.run(
-                    &s.v[p * tiles * kk..(p + 1) * tiles * kk],
-                    tiles,
-                    &mut s.m[p * tiles * cout..(p + 1) * tiles * cout],
-                );
-            }
-            #[cfg(target_arch = "x86_64")]
-            for t in 0..tiles {
-                let at = (t / tiles_x * M, t % tiles_x * M);
-                // SAFETY: AVX-512F asserted above; `s.m` sized for `tiles`.
-                unsafe { output_tile(&s.m, (t, tiles), cout, dst, at, (n_rows, wo)) };
             }
         });
     Hwc {
@@ -210,7 +249,7 @@ pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize
     }
 }
 
-/// One rayon task's buffers: the transformed input `V` and the products `M`.
+/// One rayon task's buffers for a piece: the transformed input `V` and the products `M`.
 #[derive(Default)]
 struct Scratch {
     v: Vec<f32>,
