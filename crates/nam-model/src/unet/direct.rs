@@ -163,7 +163,7 @@ impl Gemm {
         let groups = column_groups(cout);
         let packed = groups
             .iter()
-            .map(|g| pack_with(w, (cin, cout, g.clone()), 1, |v| v[0]))
+            .map(|g| pack_f32(w, cout, g.clone()))
             .collect();
         Self {
             cin,
@@ -264,6 +264,17 @@ impl Bf16Pair {
     fn of(v: &[f32]) -> Self {
         Self(to_bf16(v[0]) | v.get(1).map_or(0, |&h| to_bf16(h) << 16))
     }
+}
+
+/// Columns `cols` of the rows of `wt` (`cout` values each) in [`Operand::pack`]'s f32 layout:
+/// each row's slice of columns, padded to whole vectors.
+fn pack_f32(wt: &[f32], cout: usize, cols: Range<usize>) -> Vec<f32> {
+    let ld = cols.len().next_multiple_of(lanes(&cols));
+    let mut p = vec![0.0f32; wt.len() / cout * ld];
+    for (dst, src) in p.chunks_exact_mut(ld).zip(wt.chunks_exact(cout)) {
+        dst[..cols.len()].copy_from_slice(&src[cols.clone()]);
+    }
+    p
 }
 
 /// Columns `cols` of `wt` in [`Operand::pack`]'s layout, `group` rows of `wt` per element.
@@ -370,8 +381,8 @@ impl Operand for f32 {
         dst.copy_from_slice(src);
     }
 
-    fn pack(wt: &[f32], cin: usize, cout: usize, cols: Range<usize>) -> Vec<Self> {
-        pack_with(wt, (cin, cout, cols), 1, |v| v[0])
+    fn pack(wt: &[f32], _cin: usize, cout: usize, cols: Range<usize>) -> Vec<Self> {
+        pack_f32(wt, cout, cols)
     }
 
     #[target_feature(enable = "avx512f")]

@@ -98,17 +98,24 @@ pub(super) fn applies(conv: &PackedConv, x: &Hwc) -> bool {
         && conv.pad == conv.k / 2
         && !conv.bf16
         && conv.cout >= MIN_COUT
-        && tiles >= TILES_PER_CIN * blocks(conv.k).pow(2) * conv.cin
+        && tiles >= MIN_TILES
+        && TILES_PER_ROW * tiles >= blocks(conv.k).pow(2) * conv.cin
         && direct::available()
 }
 
 /// Output channels below which the direct tiles are faster (the output transform then costs
-/// as much as the products it saves).
-const MIN_COUT: usize = 24;
+/// as much as the products it saves): measured at 256², 32 → 16 channels ran 1.13× faster
+/// here, 16 → 8 0.75×.
+const MIN_COUT: usize = 16;
 
-/// Tiles per row of a transformed weight matrix below which the direct tiles are faster (the
-/// weight transform and packing, `36·K·cout` values per call, outweigh the products saved).
-const TILES_PER_CIN: usize = 4;
+/// Transformed-weight rows per tile above which the direct tiles are faster (the weight
+/// transform and packing, `36·K·cout` values per call, outweigh the products saved): 128 → 448
+/// channels at 32² (64 tiles, `K` = 128) still ran 1.54× faster here.
+const TILES_PER_ROW: usize = 2;
+
+/// Tiles (a 32×32 output) below which a conv stays direct: it takes microseconds either way,
+/// and small images (the parity goldens) keep the direct path's rounding.
+const MIN_TILES: usize = 64;
 
 /// 3×3 blocks per side of a k×k kernel: a larger kernel runs as `blocks²` 3×3 convolutions of
 /// shifted inputs (the kernel zero-padded to `3·blocks`, `lead` zero rows and columns first), whose
@@ -122,17 +129,24 @@ fn lead(k: usize) -> usize {
     (3 * blocks(k) - k) / 2
 }
 
+/// Values of the flattened `[ci][co]` weights per step of [`transform`]: the taps' slices
+/// (9 to 49 of them) stay in L1/L2 while every point and block is summed from them.
+const TRANSFORM_CHUNK: usize = 1024;
+
 /// `U[point] = G·g·Gᵀ` of every 3×3 block `g` of the packed weights `wt` (`[tap][ci][co]`, k×k
-/// taps), as `[point][block][ci][co]`: each point of a block is a fixed combination of its taps
-/// (coefficients `G[i][r]·G[j][s]`, rounded from f64), summed over whole `cin·cout` rows.
-fn transform_weights(wt: &[f32], k: usize, cin: usize, cout: usize) -> Vec<f32> {
+/// taps), as one GEMM operand per point (`[block][ci][co]`, `K = blocks²·cin` rows): each point
+/// of a block is a fixed combination of its taps (coefficients `G[i][r]·G[j][s]`, rounded from
+/// f64), summed over runs of [`TRANSFORM_CHUNK`] values of the flattened `[ci][co]`.
+fn transform(wt: &[f32], k: usize, cin: usize, cout: usize) -> Vec<Gemm> {
     let (n, nb, lead) = (cin * cout, blocks(k), lead(k));
-    let mut u = vec![0.0f32; POINTS * nb * nb * n];
-    u.par_chunks_mut(nb * nb * n)
-        .enumerate()
-        .for_each(|(p, dst)| {
+    let per_point = nb * nb * n;
+    let mut u = vec![0.0f32; POINTS * per_point];
+    for j0 in (0..n).step_by(TRANSFORM_CHUNK) {
+        let len = TRANSFORM_CHUNK.min(n - j0);
+        for (p, up) in u.chunks_exact_mut(per_point).enumerate() {
             let (i, j) = (p / A, p % A);
-            for (blk, dst) in dst.chunks_exact_mut(n).enumerate() {
+            for blk in 0..nb * nb {
+                let dst = &mut up[blk * n + j0..blk * n + j0 + len];
                 for (r, s) in (0..9).map(|t| (t / 3, t % 3)) {
                     let ky = (3 * (blk / nb) + r).checked_sub(lead).filter(|&v| v < k);
                     let kx = (3 * (blk % nb) + s).checked_sub(lead).filter(|&v| v < k);
@@ -141,14 +155,17 @@ fn transform_weights(wt: &[f32], k: usize, cin: usize, cout: usize) -> Vec<f32> 
                     };
                     let c = (G[i][r] * G[j][s]) as f32;
                     if c != 0.0 {
-                        let tap = ky * k + kx;
+                        let src = (ky * k + kx) * n + j0;
                         // SAFETY: AVX-512F, asserted by `run_rows` before any call.
-                        unsafe { axpy(dst, c, &wt[tap * n..(tap + 1) * n]) };
+                        unsafe { axpy(dst, c, &wt[src..src + len]) };
                     }
                 }
             }
-        });
-    u
+        }
+    }
+    u.par_chunks_exact(per_point)
+        .map(|u| Gemm::new(u, nb * nb * cin, cout))
+        .collect()
 }
 
 /// `dst += c·src`, vectorised for AVX-512.
@@ -178,11 +195,7 @@ pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize
     let nb = blocks(k);
     // Rows of each transformed weight matrix: every block's input channels.
     let kk = nb * nb * cin;
-    let u = transform_weights(wt, k, cin, cout);
-    let gemms: Vec<Gemm> = u
-        .chunks_exact(kk * cout)
-        .map(|u| Gemm::new(u, kk, cout))
-        .collect();
+    let gemms = transform(wt, k, cin, cout);
     // Input offset of block (by, bx)'s tile from its output tile, per side.
     let shift = |b: usize| (3 * b) as isize - (conv.pad + lead(k)) as isize;
     let tiles_x = wo.div_ceil(M);
