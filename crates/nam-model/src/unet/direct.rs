@@ -149,7 +149,7 @@ fn run_rows_with<E: Operand>(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range
 }
 
 /// The register tiles as a pixel-major GEMM, `dst[p][..cout] = Σ_e a[p][e]·w[e][..cout]` for
-/// `w` = `[cin, cout]`, packed once for many calls (the products of `winograd.rs`).
+/// `w` = `[cin, cout]`, packed once for many rows (the products of `winograd.rs`).
 pub(super) struct Gemm {
     cin: usize,
     cout: usize,
@@ -158,12 +158,13 @@ pub(super) struct Gemm {
 }
 
 impl Gemm {
-    pub(super) fn new(w: &[f32], cin: usize, cout: usize) -> Self {
-        assert_eq!(w.len(), cin * cout);
+    /// All-zero weights of `cin` rows and `cout` columns, in the tiles' layout (fill them with
+    /// [`Self::row_mut`]).
+    pub(super) fn zeroed(cin: usize, cout: usize) -> Self {
         let groups = column_groups(cout);
         let packed = groups
             .iter()
-            .map(|g| pack_f32(w, cout, g.clone()))
+            .map(|g| vec![0.0f32; cin * g.len().next_multiple_of(lanes(g))])
             .collect();
         Self {
             cin,
@@ -171,6 +172,14 @@ impl Gemm {
             groups,
             packed,
         }
+    }
+
+    /// Row `e` of the weights, per column group: `(columns, their values)`.
+    pub(super) fn row_mut(&mut self, e: usize) -> impl Iterator<Item = (Range<usize>, &mut [f32])> {
+        self.groups.iter().zip(&mut self.packed).map(move |(g, p)| {
+            let ld = g.len().next_multiple_of(lanes(g));
+            (g.clone(), &mut p[e * ld..e * ld + g.len()])
+        })
     }
 
     /// Writes `dst` (`n·cout`) from the `n` rows of `a` (`n·cin`). Only where [`available`].

@@ -74,9 +74,9 @@ fn band_tiles(kk: usize, cout: usize) -> usize {
 }
 
 /// Floats of the transformed weights of a k×k conv with `cin` inputs and `cout` outputs that
-/// [`run_rows`] holds during a call: `U` and its packed copy (columns padded to whole vectors).
+/// [`run_rows`] holds during a call (packed: columns padded to whole vectors).
 pub(super) fn weight_floats(k: usize, cin: usize, cout: usize) -> usize {
-    POINTS * blocks(k).pow(2) * cin * (cout + cout.next_multiple_of(LANES))
+    POINTS * blocks(k).pow(2) * cin * cout.next_multiple_of(LANES)
 }
 
 /// Floats of one rayon task's Winograd buffers, at most, for a k×k conv with `cin` inputs and
@@ -129,43 +129,44 @@ fn lead(k: usize) -> usize {
     (3 * blocks(k) - k) / 2
 }
 
-/// Values of the flattened `[ci][co]` weights per step of [`transform`]: the taps' slices
-/// (9 to 49 of them) stay in L1/L2 while every point and block is summed from them.
-const TRANSFORM_CHUNK: usize = 1024;
-
 /// `U[point] = G·g·Gᵀ` of every 3×3 block `g` of the packed weights `wt` (`[tap][ci][co]`, k×k
-/// taps), as one GEMM operand per point (`[block][ci][co]`, `K = blocks²·cin` rows): each point
-/// of a block is a fixed combination of its taps (coefficients `G[i][r]·G[j][s]`, rounded from
-/// f64), summed over runs of [`TRANSFORM_CHUNK`] values of the flattened `[ci][co]`.
+/// taps), as one GEMM operand per point (rows `[block][ci]`, `K = blocks²·cin` of them): each
+/// point of a block is a fixed combination of its taps (coefficients `G[i][r]·G[j][s]`, rounded
+/// from f64), summed over the `cout` weights of a row straight into the packed layout. Row by
+/// row for every point of a thread's share, so each tap row is read from L1.
 fn transform(wt: &[f32], k: usize, cin: usize, cout: usize) -> Vec<Gemm> {
-    let (n, nb, lead) = (cin * cout, blocks(k), lead(k));
-    let per_point = nb * nb * n;
-    let mut u = vec![0.0f32; POINTS * per_point];
-    for j0 in (0..n).step_by(TRANSFORM_CHUNK) {
-        let len = TRANSFORM_CHUNK.min(n - j0);
-        for (p, up) in u.chunks_exact_mut(per_point).enumerate() {
-            let (i, j) = (p / A, p % A);
-            for blk in 0..nb * nb {
-                let dst = &mut up[blk * n + j0..blk * n + j0 + len];
-                for (r, s) in (0..9).map(|t| (t / 3, t % 3)) {
-                    let ky = (3 * (blk / nb) + r).checked_sub(lead).filter(|&v| v < k);
-                    let kx = (3 * (blk % nb) + s).checked_sub(lead).filter(|&v| v < k);
-                    let (Some(ky), Some(kx)) = (ky, kx) else {
-                        continue;
-                    };
-                    let c = (G[i][r] * G[j][s]) as f32;
-                    if c != 0.0 {
-                        let src = (ky * k + kx) * n + j0;
-                        // SAFETY: AVX-512F, asserted by `run_rows` before any call.
-                        unsafe { axpy(dst, c, &wt[src..src + len]) };
+    let (nb, lead) = (blocks(k), lead(k));
+    let kk = nb * nb * cin;
+    let mut gemms: Vec<Gemm> = (0..POINTS).map(|_| Gemm::zeroed(kk, cout)).collect();
+    let share = POINTS.div_ceil(rayon::current_num_threads());
+    gemms
+        .par_chunks_mut(share)
+        .enumerate()
+        .for_each(|(c, chunk)| {
+            for e in 0..kk {
+                let (blk, ci) = (e / cin, e % cin);
+                for (q, gemm) in chunk.iter_mut().enumerate() {
+                    let p = c * share + q;
+                    let (i, j) = (p / A, p % A);
+                    for (cols, dst) in gemm.row_mut(e) {
+                        for (r, s) in (0..9).map(|t| (t / 3, t % 3)) {
+                            let ky = (3 * (blk / nb) + r).checked_sub(lead).filter(|&v| v < k);
+                            let kx = (3 * (blk % nb) + s).checked_sub(lead).filter(|&v| v < k);
+                            let (Some(ky), Some(kx)) = (ky, kx) else {
+                                continue;
+                            };
+                            let c = (G[i][r] * G[j][s]) as f32;
+                            if c != 0.0 {
+                                let row = ((ky * k + kx) * cin + ci) * cout;
+                                // SAFETY: AVX-512F, asserted by `run_rows` before any call.
+                                unsafe { axpy(dst, c, &wt[row + cols.start..row + cols.end]) };
+                            }
+                        }
                     }
                 }
             }
-        }
-    }
-    u.par_chunks_exact(per_point)
-        .map(|u| Gemm::new(u, nb * nb * cin, cout))
-        .collect()
+        });
+    gemms
 }
 
 /// `dst += c·src`, vectorised for AVX-512.
