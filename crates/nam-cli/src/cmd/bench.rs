@@ -138,7 +138,7 @@ pub fn run(args: &Args) -> Result<()> {
             Box::new(|| Ok(nam_model::matmul(sn, sn, sn, &a, &b, &mut c)?)),
         ),
         (
-            format!("estimate {s}² (M_est)"),
+            format!("estimate {s}² (M_est; direct-conv FLOPs, Winograd runs fewer)"),
             0,
             2.0 * model.config().estimate_macs(s, s) as f64,
             Box::new(|| {
