@@ -99,9 +99,10 @@ impl PackedConv {
     }
 
     /// Output rows `rows` of [`Self::run_with`] (an `Hwc` of `rows.len()` rows): the same
-    /// values, computed without the rest of the output. A direct convolution where the CPU
-    /// has AVX-512F/VL (faster at every width here, 4 outputs included: docs/perf/unet_cpu.md),
-    /// else im2col + GEMM.
+    /// values, computed without the rest of the output. Where the CPU has AVX-512F/VL: Winograd
+    /// F(4×4, 3×3) for the stride-1 f32 convs wide and large enough to gain from it
+    /// ([`winograd::applies`]), else a direct convolution (faster than im2col at every width
+    /// here, 4 outputs included: docs/perf/unet_cpu.md); elsewhere im2col + GEMM.
     pub(super) fn run_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
         if winograd::applies(self, x) {
             winograd::run_rows(self, x, wt, rows)

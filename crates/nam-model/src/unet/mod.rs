@@ -1,11 +1,11 @@
-//! `M_est`, fast path: HWC activations, convolutions as im2col + blocked GEMM
-//! over bands of output rows (rayon), convs that read the same input fused
-//! into one GEMM (gate, inc1a, inc2 and the 1×1 `down` as a centre tap),
-//! transposed convs split into output-parity sub-convolutions.
+//! `M_est`, fast path: HWC activations, convolutions over bands of output rows (rayon) — as
+//! Winograd F(4×4, 3×3) or direct register tiles on AVX-512, else im2col + blocked GEMM —,
+//! convs that read the same input fused into one (gate, inc1a, inc2 and the 1×1 `down` as a
+//! centre tap), transposed convs split into output-parity sub-convolutions.
 //!
 //! This file holds [`UNet`] (packing and the forward pass) and the image checks;
 //! `blocks.rs` the HA-Conv, BasicBlock and ReverseBlock; `conv.rs` the convolution
-//! primitives they are built from.
+//! primitives they are built from (`direct.rs`, `winograd.rs`: the AVX-512 kernels).
 
 use nam_weights::Weights;
 
