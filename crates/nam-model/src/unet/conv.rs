@@ -319,6 +319,46 @@ pub(super) fn ha_mix(gate: f32, feat: f32, inc: f32, slope: f32) -> f32 {
     gate * b + inc
 }
 
+/// Deterministic convolutions and inputs for the kernel tests (`direct.rs`, `winograd.rs`).
+#[cfg(test)]
+pub(super) mod fixtures {
+    use super::{Hwc, PackedConv};
+
+    fn det(i: usize, salt: usize) -> f32 {
+        ((i * 7919 + salt * 104_729) % 2003) as f32 / 2003.0 - 0.5
+    }
+
+    /// A k×k conv (`cin → cout`, stride `s`, padding k/2; weights in [−0.5, 0.5)) and an
+    /// `h × w` input with `xc ≥ cin` channels (values in [−1.5, 1.5)), both from `salt`.
+    pub(in super::super) fn case(
+        (k, s, cin, xc, cout): (usize, usize, usize, usize, usize),
+        (h, w): (usize, usize),
+        salt: usize,
+    ) -> (PackedConv, Hwc) {
+        let conv = PackedConv {
+            k,
+            stride: s,
+            pad: k / 2,
+            cin,
+            cout,
+            wt: (0..k * k * cin * cout).map(|i| det(i, salt)).collect(),
+            bf16: false,
+        };
+        let d = (0..h * w * xc).map(|i| 3.0 * det(i, salt + 17)).collect();
+        (conv, Hwc { h, w, c: xc, d })
+    }
+
+    /// Largest `|got − want|` relative to the magnitude of `want` (or 1).
+    pub(in super::super) fn worst_rel(got: &Hwc, want: &Hwc) -> f32 {
+        assert_eq!((got.h, got.w, got.c), (want.h, want.w, want.c));
+        want.d
+            .iter()
+            .zip(&got.d)
+            .map(|(a, b)| (a - b).abs() / a.abs().max(1.0))
+            .fold(0.0f32, f32::max)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -588,23 +588,11 @@ impl<E: Operand> Tile<'_, E> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::unet::conv::fixtures::{case, worst_rel};
 
     /// The direct path sums the same products as im2col + GEMM in another order: f32
     /// rounding, relative to the magnitude of the output (or 1).
     const DIRECT_TOL: f32 = 2e-5;
-
-    fn worst_rel(got: &Hwc, want: &Hwc) -> f32 {
-        assert_eq!((got.h, got.w, got.c), (want.h, want.w, want.c));
-        want.d
-            .iter()
-            .zip(&got.d)
-            .map(|(a, b)| (a - b).abs() / a.abs().max(1.0))
-            .fold(0.0f32, f32::max)
-    }
-
-    fn det(i: usize, salt: usize) -> f32 {
-        ((i * 7919 + salt * 104_729) % 2003) as f32 / 2003.0 - 0.5
-    }
 
     #[test]
     fn column_groups_cover_every_column_in_even_groups() {
@@ -640,22 +628,7 @@ mod tests {
             (3, 2, 8, 8, 88, 9, 31),
         ];
         for (n, &(k, s, cin, xc, cout, h, w)) in cases.iter().enumerate() {
-            let wt: Vec<f32> = (0..k * k * cin * cout).map(|i| det(i, n)).collect();
-            let conv = PackedConv {
-                k,
-                stride: s,
-                pad: k / 2,
-                cin,
-                cout,
-                wt,
-                bf16: false,
-            };
-            let x = Hwc {
-                h,
-                w,
-                c: xc,
-                d: (0..h * w * xc).map(|i| 3.0 * det(i, n + 17)).collect(),
-            };
+            let (conv, x) = case((k, s, cin, xc, cout), (h, w), n);
             let (ho, _) = conv.out_size(&x);
             for rows in [0..ho, ho / 3..ho, 0..ho.div_ceil(2)] {
                 if rows.is_empty() {

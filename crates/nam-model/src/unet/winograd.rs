@@ -394,15 +394,12 @@ unsafe fn output_tile(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::unet::conv::fixtures::{case, worst_rel};
 
     /// F(4×4, 3×3) in f32 against the im2col path, relative to the output's magnitude (or 1):
     /// the transforms' coefficients (up to 8 and 1/15) amplify rounding (2.2e-5 at worst in
     /// these cases; the direct path's `DIRECT_TOL` is 2e-5).
     const WINOGRAD_TOL: f32 = 5e-5;
-
-    fn det(i: usize, salt: usize) -> f32 {
-        ((i * 7919 + salt * 104_729) % 2003) as f32 / 2003.0 - 0.5
-    }
 
     #[test]
     fn winograd_matches_im2col_gemm() {
@@ -426,35 +423,14 @@ mod tests {
             (5, 6, 6, 20, 7, 10),
         ];
         for (n, &(k, cin, xc, cout, h, w)) in cases.iter().enumerate() {
-            let wt: Vec<f32> = (0..k * k * cin * cout).map(|i| det(i, n)).collect();
-            let conv = PackedConv {
-                k,
-                stride: 1,
-                pad: k / 2,
-                cin,
-                cout,
-                wt,
-                bf16: false,
-            };
-            let x = Hwc {
-                h,
-                w,
-                c: xc,
-                d: (0..h * w * xc).map(|i| 3.0 * det(i, n + 17)).collect(),
-            };
+            let (conv, x) = case((k, 1, cin, xc, cout), (h, w), n);
             for rows in [0..h, h / 3..h, 0..h.div_ceil(2)] {
                 if rows.is_empty() {
                     continue;
                 }
                 let want = conv.im2col_rows(&x, &conv.wt, rows.clone());
                 let got = run_rows(&conv, &x, &conv.wt, rows.clone());
-                assert_eq!((got.h, got.w, got.c), (want.h, want.w, want.c));
-                let worst = want
-                    .d
-                    .iter()
-                    .zip(&got.d)
-                    .map(|(a, b)| (a - b).abs() / a.abs().max(1.0))
-                    .fold(0.0f32, f32::max);
+                let worst = worst_rel(&got, &want);
                 assert!(worst < WINOGRAD_TOL, "case {n}, rows {rows:?}: {worst:e}");
             }
         }
