@@ -218,40 +218,40 @@ pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize
             let y0 = rows.start + b * band;
             let n_rows = dst.len() / (wo * cout);
             let ty = n_rows.div_ceil(M);
-            for tx in (0..tiles_x).step_by(piece.div_ceil(ty).max(1)) {
-                let tw = piece.div_ceil(ty).max(1).min(tiles_x - tx);
+            // Tiles per row of a piece: `piece` tiles spread over the band's rows of tiles.
+            let per_row = piece.div_ceil(ty).max(1);
+            for tx in (0..tiles_x).step_by(per_row) {
+                let tw = per_row.min(tiles_x - tx);
                 let tiles = ty * tw;
                 // The tile at (i, j) of this piece: output pixel (i·M, (tx + j)·M) of the band.
                 let at = |t: usize| (t / tw * M, (tx + t % tw) * M);
-                {
-                    s.v.resize(POINTS * tiles * kk, 0.0);
-                    s.m.resize(POINTS * tiles * cout, 0.0);
-                    #[cfg(target_arch = "x86_64")]
-                    for t in 0..tiles {
-                        let (oy, ox) = at(t);
-                        for blk in 0..nb * nb {
-                            let origin = (
-                                (y0 + oy) as isize + shift(blk / nb),
-                                ox as isize + shift(blk % nb),
-                            );
-                            // SAFETY: AVX-512F asserted above; `s.v` sized for `tiles` rows of `kk`.
-                            unsafe {
-                                input_tile(x, cin, origin, &mut s.v, (t, tiles), (kk, blk * cin));
-                            }
+                s.v.resize(POINTS * tiles * kk, 0.0);
+                s.m.resize(POINTS * tiles * cout, 0.0);
+                #[cfg(target_arch = "x86_64")]
+                for t in 0..tiles {
+                    let (oy, ox) = at(t);
+                    for blk in 0..nb * nb {
+                        let origin = (
+                            (y0 + oy) as isize + shift(blk / nb),
+                            ox as isize + shift(blk % nb),
+                        );
+                        // SAFETY: AVX-512F asserted above; `input_tile` checks its bounds.
+                        unsafe {
+                            input_tile(x, cin, origin, &mut s.v, (t, tiles), (kk, blk * cin));
                         }
                     }
-                    for (p, g) in gemms.iter().enumerate() {
-                        g.run(
-                            &s.v[p * tiles * kk..(p + 1) * tiles * kk],
-                            tiles,
-                            &mut s.m[p * tiles * cout..(p + 1) * tiles * cout],
-                        );
-                    }
-                    #[cfg(target_arch = "x86_64")]
-                    for t in 0..tiles {
-                        // SAFETY: AVX-512F asserted above; `s.m` sized for `tiles`.
-                        unsafe { output_tile(&s.m, (t, tiles), cout, dst, at(t), (n_rows, wo)) };
-                    }
+                }
+                for (p, g) in gemms.iter().enumerate() {
+                    g.run(
+                        &s.v[p * tiles * kk..(p + 1) * tiles * kk],
+                        tiles,
+                        &mut s.m[p * tiles * cout..(p + 1) * tiles * cout],
+                    );
+                }
+                #[cfg(target_arch = "x86_64")]
+                for t in 0..tiles {
+                    // SAFETY: AVX-512F asserted above; `output_tile` checks its bounds.
+                    unsafe { output_tile(&s.m, (t, tiles), cout, dst, at(t), (n_rows, wo)) };
                 }
             }
         });
@@ -296,7 +296,7 @@ fn combine(c: &[f32; A], v: &[std::arch::x86_64::__m512; A]) -> std::arch::x86_6
 /// channels at a time (masked loads and stores for the last block).
 ///
 /// # Safety
-/// AVX-512F; `v` holds `POINTS · tiles · ld` values, `t < tiles`, `c0 + cin ≤ ld`.
+/// AVX-512F (the bounds are checked).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[allow(clippy::needless_range_loop)]
@@ -350,7 +350,7 @@ unsafe fn input_tile(
 /// `dst` from `(y, x)`, 16 channels at a time.
 ///
 /// # Safety
-/// AVX-512F; `m` holds `POINTS · tiles · cout` values, `t < tiles`, `dst` `n_rows · wo · cout`.
+/// AVX-512F (the bounds are checked).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[allow(clippy::needless_range_loop)]
@@ -363,6 +363,8 @@ unsafe fn output_tile(
     (n_rows, wo): (usize, usize),
 ) {
     use std::arch::x86_64::*;
+    assert!(t < tiles && m.len() >= POINTS * tiles * cout && dst.len() >= n_rows * wo * cout);
+    assert!(y < n_rows && x < wo);
     let (ni, nj) = (M.min(n_rows - y), M.min(wo - x));
     let src = m.as_ptr();
     let out = dst.as_mut_ptr();
