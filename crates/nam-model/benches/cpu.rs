@@ -68,6 +68,10 @@ fn benches(c: &mut Criterion) {
         g.bench_function(format!("estimate_256_c{width}"), |bch| {
             bch.iter(|| unet.estimate(black_box(&input), 256, 256))
         });
+        let direct = unet.clone().without_winograd();
+        g.bench_function(format!("estimate_direct_256_c{width}"), |bch| {
+            bch.iter(|| direct.estimate(black_box(&input), 256, 256))
+        });
         if nam_model::bf16_supported() {
             let bf = unet.clone().with_bf16().expect("supported");
             g.bench_function(format!("estimate_bf16_256_c{width}"), |bch| {

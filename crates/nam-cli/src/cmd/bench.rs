@@ -111,6 +111,9 @@ pub fn run(args: &Args) -> Result<()> {
         None
     };
 
+    // The U-Net with every conv direct (no Winograd), timed in the same rounds.
+    let unet_direct = cpu.unet.clone().without_winograd();
+
     // The U-Net with bf16 products (`UNet::with_bf16`), and how far its param map lies from
     // the f32 one: the largest |a − b| / (1 + |b|).
     let unet_bf16 = if nam_model::bf16_supported() {
@@ -294,6 +297,15 @@ pub fn run(args: &Args) -> Result<()> {
             ),
         );
     }
+    cases.push((
+        format!("estimate {s}², direct convs only (no Winograd)"),
+        0,
+        2.0 * model.config().estimate_macs(s, s) as f64,
+        Box::new(|| {
+            unet_direct.estimate(&input, s, s)?;
+            Ok(())
+        }),
+    ));
     let rows = measure(cases, rep)?;
     if !out.iter().all(|v| v.is_finite()) {
         bail!("query batch gave non-finite output");

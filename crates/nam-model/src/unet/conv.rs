@@ -39,6 +39,9 @@ pub(super) struct PackedConv {
     pub(super) wt: Vec<f32>,
     /// bf16 products, f32 sums ([`super::UNet::with_bf16`]; direct convolution only).
     pub(super) bf16: bool,
+    /// Winograd where it pays ([`super::winograd::applies`]; cleared by
+    /// [`super::UNet::without_winograd`]).
+    pub(super) winograd: bool,
 }
 
 impl PackedConv {
@@ -76,6 +79,7 @@ impl PackedConv {
             cout,
             wt,
             bf16: false,
+            winograd: true,
         }
     }
 
@@ -343,6 +347,7 @@ pub(super) mod fixtures {
             cout,
             wt: (0..k * k * cin * cout).map(|i| det(i, salt)).collect(),
             bf16: false,
+            winograd: true,
         };
         let d = (0..h * w * xc).map(|i| 3.0 * det(i, salt + 17)).collect();
         (conv, Hwc { h, w, c: xc, d })

@@ -154,6 +154,21 @@ impl UNet {
     }
 
     fn set_bf16(&mut self, on: bool) {
+        self.convs_mut().into_iter().for_each(|c| c.bf16 = on);
+    }
+
+    /// The same network with every conv on the direct tiles (or im2col), none as Winograd: the
+    /// same values within the Winograd path's rounding, for timing the two in one run
+    /// (`nam-cli bench`, the criterion benches).
+    pub fn without_winograd(mut self) -> Self {
+        self.convs_mut()
+            .into_iter()
+            .for_each(|c| c.winograd = false);
+        self
+    }
+
+    /// Every k×k convolution of the network (the ReverseBlocks' transposed ones excluded).
+    fn convs_mut(&mut self) -> Vec<&mut PackedConv> {
         let mut convs = vec![&mut self.stem, &mut self.head];
         for b in self
             .enc
@@ -168,7 +183,7 @@ impl UNet {
             &mut self.dec2.0.conv,
             &mut self.dec3.0.conv,
         ]);
-        convs.into_iter().for_each(|c| c.bf16 = on);
+        convs
     }
 
     /// Whether [`Self::with_bf16`] made this network's products bf16.

@@ -96,6 +96,7 @@ pub(super) fn applies(conv: &PackedConv, x: &Hwc) -> bool {
         && conv.k >= 3
         && conv.stride == 1
         && conv.pad == conv.k / 2
+        && conv.winograd
         && !conv.bf16
         && conv.cout >= MIN_COUT
         && tiles >= MIN_TILES
