@@ -76,13 +76,13 @@ fn band_tiles(kk: usize, cout: usize) -> usize {
 /// Floats of the transformed weights of a k×k conv with `cin` inputs and `cout` outputs that
 /// [`run_rows`] holds during a call (packed: columns padded to whole vectors).
 pub(super) fn weight_floats(k: usize, cin: usize, cout: usize) -> usize {
-    POINTS * blocks(k).pow(2) * cin * cout.next_multiple_of(LANES)
+    POINTS * gemm_rows(k, cin) * cout.next_multiple_of(LANES)
 }
 
 /// Floats of one rayon task's Winograd buffers, at most, for a k×k conv with `cin` inputs and
 /// `cout` outputs.
 pub(super) fn scratch_floats(k: usize, cin: usize, cout: usize) -> usize {
-    let kk = blocks(k).pow(2) * cin;
+    let kk = gemm_rows(k, cin);
     POINTS * band_tiles(kk, cout) * (kk + cout)
 }
 
@@ -100,7 +100,7 @@ pub(super) fn applies(conv: &PackedConv, x: &Hwc) -> bool {
         && !conv.bf16
         && conv.cout >= MIN_COUT
         && tiles >= MIN_TILES
-        && TILES_PER_ROW * tiles >= blocks(conv.k).pow(2) * conv.cin
+        && TILES_PER_ROW * tiles >= gemm_rows(conv.k, conv.cin)
         && direct::available()
 }
 
@@ -125,6 +125,11 @@ fn blocks(k: usize) -> usize {
     k.div_ceil(3)
 }
 
+/// `K`, the rows of each point's transformed weights: every 3×3 block's input channels.
+fn gemm_rows(k: usize, cin: usize) -> usize {
+    blocks(k).pow(2) * cin
+}
+
 /// Zero rows (and columns) before the kernel in its `3·blocks` padding.
 fn lead(k: usize) -> usize {
     (3 * blocks(k) - k) / 2
@@ -137,7 +142,7 @@ fn lead(k: usize) -> usize {
 /// row for every point of a thread's share, so each tap row is read from L1.
 fn transform(wt: &[f32], k: usize, cin: usize, cout: usize) -> Vec<Gemm> {
     let (nb, lead) = (blocks(k), lead(k));
-    let kk = nb * nb * cin;
+    let kk = gemm_rows(k, cin);
     let mut gemms: Vec<Gemm> = (0..POINTS).map(|_| Gemm::zeroed(kk, cout)).collect();
     let share = POINTS.div_ceil(rayon::current_num_threads());
     gemms
@@ -195,8 +200,7 @@ pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize
     let (ho, wo) = conv.out_size(x);
     assert!(rows.end <= ho && !rows.is_empty());
     let nb = blocks(k);
-    // Rows of each transformed weight matrix: every block's input channels.
-    let kk = nb * nb * cin;
+    let kk = gemm_rows(k, cin);
     let gemms = transform(wt, k, cin, cout);
     // Input offset of block (by, bx)'s tile from its output tile, per side.
     let shift = |b: usize| (3 * b) as isize - (conv.pad + lead(k)) as isize;
