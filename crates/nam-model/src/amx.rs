@@ -20,7 +20,7 @@ pub(crate) const M_BLOCK: usize = 32;
 /// Columns of the output block (two B tiles).
 pub(crate) const N_BLOCK: usize = 32;
 /// Rows and columns of one f32 accumulator tile.
-const TILE: usize = 16;
+pub(crate) const TILE: usize = 16;
 
 /// True when this CPU has AMX-BF16 and the OS granted this process the tile
 /// state (checked once per process).
@@ -85,6 +85,118 @@ impl TileConfig {
     }
 }
 
+/// Loads the tile configuration every kernel here uses (palette 1, eight 16-row × 64-byte
+/// tiles: tmm0–1 the A tiles, tmm2–3 the B tiles, tmm4–7 the four 16 × 16 f32 sums of a
+/// 32 × 32 block) on this thread.
+///
+/// # Safety
+/// [`available`] must have returned true; pair with [`release`] on the same thread.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(crate) unsafe fn configure() {
+    let cfg = TileConfig::all_full();
+    // SAFETY: `cfg` is a valid palette-1 configuration; AMX by the caller's contract.
+    unsafe { std::arch::asm!("ldtilecfg [{}]", in(reg) &cfg, options(nostack, readonly)) };
+}
+
+/// Releases this thread's tile state ([`configure`] again before the next product).
+///
+/// # Safety
+/// [`available`] must have returned true.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(crate) unsafe fn release() {
+    // SAFETY: AMX by the caller's contract.
+    unsafe { std::arch::asm!("tilerelease", options(nostack, nomem)) };
+}
+
+/// Sets the four sums of the 32 × 32 block to zero.
+///
+/// # Safety
+/// Tiles [`configure`]d on this thread.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn zero_block() {
+    // SAFETY: configured tiles, by the caller's contract.
+    unsafe {
+        std::arch::asm!(
+            "tilezero tmm4",
+            "tilezero tmm5",
+            "tilezero tmm6",
+            "tilezero tmm7",
+            options(nostack, nomem)
+        );
+    }
+}
+
+/// Adds one k-step of 16 pairs to the 32 × 32 block: rows 0–15 of the block from the A tile at
+/// `a0`, rows 16–31 from `a1` (16 rows of 16 bf16 pairs each, `sa` bytes apart), columns 0–15
+/// from the B tile at `b0`, 16–31 from `b1` (16 rows of pairs along k × 16 columns, `sb` bytes
+/// apart).
+///
+/// # Safety
+/// Tiles [`configure`]d on this thread; 16 rows of 64 readable bytes at each pointer's stride.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn dot_block(
+    [a0, a1]: [*const u32; 2],
+    sa: usize,
+    [b0, b1]: [*const u32; 2],
+    sb: usize,
+) {
+    // SAFETY: the caller's contract.
+    unsafe {
+        std::arch::asm!(
+            "tileloadd tmm0, [{a0} + {sa}*1]",
+            "tileloadd tmm1, [{a1} + {sa}*1]",
+            "tileloadd tmm2, [{b0} + {sb}*1]",
+            "tileloadd tmm3, [{b1} + {sb}*1]",
+            "tdpbf16ps tmm4, tmm0, tmm2",
+            "tdpbf16ps tmm5, tmm0, tmm3",
+            "tdpbf16ps tmm6, tmm1, tmm2",
+            "tdpbf16ps tmm7, tmm1, tmm3",
+            a0 = in(reg) a0,
+            a1 = in(reg) a1,
+            b0 = in(reg) b0,
+            b1 = in(reg) b1,
+            sa = in(reg) sa,
+            sb = in(reg) sb,
+            options(nostack, readonly)
+        );
+    }
+}
+
+/// The block's sums in [`store_sums`] order: (row offset, column offset) of each 16 × 16 tile.
+pub(crate) const SUMS: [(usize, usize); 4] = [(0, 0), (0, TILE), (TILE, 0), (TILE, TILE)];
+
+/// Stores sum `t` of the block ([`SUMS`]`[t]`) as 16 rows of 16 f32 at `dst`, `stride` bytes
+/// apart.
+///
+/// # Safety
+/// Tiles [`configure`]d on this thread; 16 rows of 64 writable bytes at `dst`'s stride.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn store_sum(t: usize, dst: *mut f32, stride: usize) {
+    use std::arch::asm;
+    // SAFETY: the caller's contract.
+    unsafe {
+        match t {
+            0 => {
+                asm!("tilestored [{p} + {s}*1], tmm4", p = in(reg) dst, s = in(reg) stride, options(nostack))
+            }
+            1 => {
+                asm!("tilestored [{p} + {s}*1], tmm5", p = in(reg) dst, s = in(reg) stride, options(nostack))
+            }
+            2 => {
+                asm!("tilestored [{p} + {s}*1], tmm6", p = in(reg) dst, s = in(reg) stride, options(nostack))
+            }
+            _ => {
+                asm!("tilestored [{p} + {s}*1], tmm7", p = in(reg) dst, s = in(reg) stride, options(nostack))
+            }
+        }
+    }
+}
+
 /// `y[r, o] = act(Σ_p a[r, p] · w[p, o])` for `r < m`, `o < out`, with bf16
 /// pairs `a` (`m_pad × kp` u32, `m_pad` a multiple of [`M_BLOCK`], `kp` of
 /// [`K_PAIRS`], rows past `m` zero) and `w` (`kp × out_pad` u32, `out_pad` a
@@ -105,77 +217,26 @@ pub(crate) unsafe fn matmul(
     ldy: usize,
     act: impl Fn(f32) -> f32,
 ) {
-    use std::arch::asm;
     // Checked once per call: every tile load below stays inside `a` and `w`.
     assert!(kp.is_multiple_of(K_PAIRS) && out_pad.is_multiple_of(N_BLOCK) && out <= out_pad);
     assert!(a.len() >= m.div_ceil(M_BLOCK) * M_BLOCK * kp && w.len() >= kp * out_pad);
-    let cfg = TileConfig::all_full();
     let (sa, sw) = (kp * 4, out_pad * 4);
     let mut c = [[0.0f32; TILE]; TILE];
-    // SAFETY: (all asm below) `cfg` is a valid palette-1 configuration; every
-    // tile load reads 16 rows of 64 bytes inside `a` or `w` by the size
-    // contract; stores go to the 1 KiB `c`. Tiles tmm0–1 hold A, tmm2–3 B,
-    // tmm4–7 the four 16 × 16 sums of the 32 × 32 block.
-    unsafe {
-        asm!("ldtilecfg [{}]", in(reg) &cfg, options(nostack, readonly));
-    }
+    // SAFETY (all calls below): AMX by this fn's contract; every tile load reads 16 rows of 64
+    // bytes inside `a` or `w` by the size checks; stores go to the 1 KiB `c`.
+    unsafe { configure() };
     for i0 in (0..m).step_by(M_BLOCK) {
         for j0 in (0..out.min(out_pad)).step_by(N_BLOCK) {
-            unsafe {
-                asm!(
-                    "tilezero tmm4",
-                    "tilezero tmm5",
-                    "tilezero tmm6",
-                    "tilezero tmm7",
-                    options(nostack, nomem)
-                );
-            }
+            unsafe { zero_block() };
             for p0 in (0..kp).step_by(K_PAIRS) {
                 let a0 = a[i0 * kp + p0..].as_ptr();
                 let a1 = a[(i0 + TILE) * kp + p0..].as_ptr();
                 let b0 = w[p0 * out_pad + j0..].as_ptr();
                 let b1 = w[p0 * out_pad + j0 + TILE..].as_ptr();
-                unsafe {
-                    asm!(
-                        "tileloadd tmm0, [{a0} + {sa}*1]",
-                        "tileloadd tmm1, [{a1} + {sa}*1]",
-                        "tileloadd tmm2, [{b0} + {sw}*1]",
-                        "tileloadd tmm3, [{b1} + {sw}*1]",
-                        "tdpbf16ps tmm4, tmm0, tmm2",
-                        "tdpbf16ps tmm5, tmm0, tmm3",
-                        "tdpbf16ps tmm6, tmm1, tmm2",
-                        "tdpbf16ps tmm7, tmm1, tmm3",
-                        a0 = in(reg) a0,
-                        a1 = in(reg) a1,
-                        b0 = in(reg) b0,
-                        b1 = in(reg) b1,
-                        sa = in(reg) sa,
-                        sw = in(reg) sw,
-                        options(nostack, readonly)
-                    );
-                }
+                unsafe { dot_block([a0, a1], sa, [b0, b1], sw) };
             }
-            for (t, (di, dj)) in [(0, 0), (0, TILE), (TILE, 0), (TILE, TILE)]
-                .into_iter()
-                .enumerate()
-            {
-                let dst = c.as_mut_ptr().cast::<f32>();
-                unsafe {
-                    match t {
-                        0 => {
-                            asm!("tilestored [{p} + {s}*1], tmm4", p = in(reg) dst, s = in(reg) 64usize, options(nostack))
-                        }
-                        1 => {
-                            asm!("tilestored [{p} + {s}*1], tmm5", p = in(reg) dst, s = in(reg) 64usize, options(nostack))
-                        }
-                        2 => {
-                            asm!("tilestored [{p} + {s}*1], tmm6", p = in(reg) dst, s = in(reg) 64usize, options(nostack))
-                        }
-                        _ => {
-                            asm!("tilestored [{p} + {s}*1], tmm7", p = in(reg) dst, s = in(reg) 64usize, options(nostack))
-                        }
-                    }
-                }
+            for (t, (di, dj)) in SUMS.into_iter().enumerate() {
+                unsafe { store_sum(t, c.as_mut_ptr().cast::<f32>(), 4 * TILE) };
                 let (r0, o0) = (i0 + di, j0 + dj);
                 if r0 >= m || o0 >= out {
                     continue;
@@ -190,7 +251,5 @@ pub(crate) unsafe fn matmul(
             }
         }
     }
-    unsafe {
-        asm!("tilerelease", options(nostack, nomem));
-    }
+    unsafe { release() };
 }

@@ -30,7 +30,8 @@ pub fn bf16_supported() -> bool {
     }
 }
 
-/// The instructions the bf16 path runs on this CPU: `"AMX tiles"` or
+/// The instructions the bf16 paths (the dense layers and the U-Net's convolutions) run on
+/// this CPU: `"AMX tiles"` or
 /// `"AVX-512 BF16"` (meaningful where [`bf16_supported`]).
 pub fn bf16_kernel() -> &'static str {
     if amx::available() {
@@ -225,7 +226,7 @@ impl Bf16Dense {
 /// (`vcvtneps2bf16`, round to nearest even as [`to_bf16`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
-fn pack_row_avx512(row: &[f32], dst: &mut [u32]) {
+pub(crate) fn pack_row_avx512(row: &[f32], dst: &mut [u32]) {
     use std::arch::x86_64::*;
     let n = row.len();
     let out = dst.as_mut_ptr().cast::<i16>();

@@ -287,7 +287,10 @@ pub fn run(args: &Args) -> Result<()> {
         cases.insert(
             2,
             (
-                format!("estimate {s}², bf16 (AVX-512 BF16; params within {err:.1e} of f32)"),
+                format!(
+                    "estimate {s}², bf16 ({}; params within {err:.1e} of f32)",
+                    nam_model::bf16_kernel()
+                ),
                 0,
                 2.0 * model.config().estimate_macs(s, s) as f64,
                 Box::new(|| {

@@ -4,7 +4,7 @@
 
 use rayon::prelude::*;
 
-use super::{direct, winograd};
+use super::{amx_conv, direct, winograd};
 use crate::sgemm::{Mat, sgemm, sgemm_into_transposed};
 
 /// Output pixels per GEMM band: enough rows for the GEMM kernel, small enough
@@ -103,12 +103,15 @@ impl PackedConv {
     }
 
     /// Output rows `rows` of [`Self::run_with`] (an `Hwc` of `rows.len()` rows): the same
-    /// values, computed without the rest of the output. Where the CPU has AVX-512F/VL: Winograd
+    /// values, computed without the rest of the output. bf16 products on AMX tiles where the CPU
+    /// has them ([`amx_conv`]). Otherwise, where the CPU has AVX-512F/VL: Winograd
     /// F(4×4, 3×3) for the stride-1 f32 convs wide and large enough to gain from it
     /// ([`winograd::applies`]), else a direct convolution (faster than im2col at every width
     /// here, 4 outputs included: docs/perf/unet_cpu.md); elsewhere im2col + GEMM.
     pub(super) fn run_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
-        if winograd::applies(self, x) {
+        if self.bf16 && amx_conv::available() {
+            amx_conv::run_rows(self, x, wt, rows)
+        } else if winograd::applies(self, x) {
             winograd::run_rows(self, x, wt, rows)
         } else if direct::available() {
             direct::run_rows(self, x, wt, rows, self.bf16)
@@ -327,6 +330,10 @@ pub(super) fn ha_mix(gate: f32, feat: f32, inc: f32, slope: f32) -> f32 {
 #[cfg(test)]
 pub(super) mod fixtures {
     use super::{Hwc, PackedConv};
+
+    /// The direct and AMX paths sum the same products as im2col + GEMM in another order: f32
+    /// rounding, relative to the magnitude of the output (or 1).
+    pub(in super::super) const DIRECT_TOL: f32 = 2e-5;
 
     fn det(i: usize, salt: usize) -> f32 {
         ((i * 7919 + salt * 104_729) % 2003) as f32 / 2003.0 - 0.5

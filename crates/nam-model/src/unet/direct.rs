@@ -50,7 +50,7 @@ pub(super) fn available_bf16() -> bool {
 /// Output rows per band (per rayon task) for `rows` output rows of a stride-`s` conv over an
 /// input `w_in` wide: about [`BAND_PIXELS`] input pixels, and at least four bands per thread
 /// where there are enough rows.
-fn band_rows(w_in: usize, s: usize, rows: usize) -> usize {
+pub(super) fn band_rows(w_in: usize, s: usize, rows: usize) -> usize {
     (BAND_PIXELS / (w_in * s)).clamp(1, rows.div_ceil(4 * rayon::current_num_threads()).max(1))
 }
 
@@ -233,7 +233,7 @@ fn column_groups(cout: usize) -> Vec<Range<usize>> {
 
 /// Starts of the `mr`-pixel tiles covering a row of `wo ≥ mr` pixels: the last tile overlaps
 /// its neighbour (the same values are written twice) instead of running a narrower tile.
-fn tile_starts(wo: usize, mr: usize) -> impl Iterator<Item = usize> {
+pub(super) fn tile_starts(wo: usize, mr: usize) -> impl Iterator<Item = usize> {
     (0..wo.div_ceil(mr)).map(move |i| (i * mr).min(wo - mr))
 }
 
@@ -588,11 +588,7 @@ impl<E: Operand> Tile<'_, E> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::unet::conv::fixtures::{case, worst_rel};
-
-    /// The direct path sums the same products as im2col + GEMM in another order: f32
-    /// rounding, relative to the magnitude of the output (or 1).
-    const DIRECT_TOL: f32 = 2e-5;
+    use crate::unet::conv::fixtures::{DIRECT_TOL, case, worst_rel};
 
     #[test]
     fn column_groups_cover_every_column_in_even_groups() {

@@ -5,13 +5,15 @@
 //!
 //! This file holds [`UNet`] (packing and the forward pass) and the image checks;
 //! `blocks.rs` the HA-Conv, BasicBlock and ReverseBlock; `conv.rs` the convolution
-//! primitives they are built from (`direct.rs`, `winograd.rs`: the AVX-512 kernels).
+//! primitives they are built from (`direct.rs`, `winograd.rs`: the AVX-512 kernels;
+//! `amx_conv.rs`: the bf16 one on AMX tiles).
 
 use nam_weights::Weights;
 
 use crate::error::{ModelError, Result, check_finite, check_len};
 use crate::maps::ParamMap;
 
+mod amx_conv;
 mod blocks;
 mod conv;
 mod direct;
@@ -135,8 +137,9 @@ impl UNet {
 
     /// The same network with bf16 products and f32 sums in its k×k convolutions (the
     /// ReverseBlocks' transposed convs stay f32), where the CPU has AVX-512 BF16: about twice the
-    /// products per instruction, the param map within [`BF16_PARAM_TOL`] of f32's. Errors
-    /// when the CPU lacks the instructions.
+    /// products per instruction (`vdpbf16ps`), or on AMX tiles where the CPU has AMX-BF16
+    /// (`amx_conv.rs`; [`crate::bf16_kernel`] names the one used), the param map within
+    /// [`BF16_PARAM_TOL`] of f32's. Errors when the CPU lacks the instructions.
     pub fn with_bf16(mut self) -> Result<Self> {
         if !direct::available_bf16() {
             return Err(ModelError::Unsupported(
