@@ -197,17 +197,39 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> H
             // Pairs written by earlier bands of this thread stay: finite values, read only
             // against zero weights or into discarded sums.
             pad.resize(shape.pad_len(n_rows), 0);
-            let (cp, wp) = (shape.cp, shape.wp);
+            let (cp, wp, p) = (shape.cp, shape.wp, conv.pad);
+            // Input columns of a padded row: [p, p + inner) read x columns 0.., the rest repeat
+            // the first or the last.
+            let inner = x.w.min(wp - p);
+            let row_len = wp * cp;
             for py in 0..(n_rows - 1) * s + k {
-                let iy = (oy0 * s + py).saturating_sub(conv.pad).min(x.h - 1);
-                for px in 0..wp {
-                    let ix = px.saturating_sub(conv.pad).min(x.w - 1);
-                    let src = (iy * x.w + ix) * x.c;
-                    let d = (py * wp + px) * cp;
-                    // SAFETY: AVX-512 BF16 (`available`); the destination holds ⌈cin/2⌉ pairs.
+                let iy = (oy0 * s + py).saturating_sub(p).min(x.h - 1);
+                let at = py * row_len;
+                if py > 0 && iy == (oy0 * s + py - 1).saturating_sub(p).min(x.h - 1) {
+                    // The same input row as the last one (the top or bottom padding).
+                    pad.copy_within(at - row_len..at, at);
+                    continue;
+                }
+                let (src, dst) = (&x.d[iy * x.w * x.c..], &mut pad[at..at + row_len]);
+                // SAFETY (both): AVX-512 BF16 (`available`); each destination holds the pairs
+                // of its source values.
+                if x.c == cin && cin.is_multiple_of(2) {
+                    // Whole pixels of pairs: the row's inner columns convert as one run.
                     unsafe {
-                        crate::bf16::pack_row_avx512(&x.d[src..src + cin], &mut pad[d..d + cp]);
+                        crate::bf16::pack_row_avx512(
+                            &src[..inner * cin],
+                            &mut dst[p * cp..(p + inner) * cp],
+                        );
                     }
+                } else {
+                    for ix in 0..inner {
+                        let d = &mut dst[(p + ix) * cp..(p + ix + 1) * cp];
+                        unsafe { crate::bf16::pack_row_avx512(&src[ix * x.c..][..cin], d) };
+                    }
+                }
+                for px in (0..p).chain(p + inner..wp) {
+                    let from = px.saturating_sub(p).min(x.w - 1) + p;
+                    dst.copy_within(from * cp..(from + 1) * cp, px * cp);
                 }
             }
             // SAFETY: AMX (`available`, asserted by the caller).
