@@ -6,7 +6,8 @@ use nam_weights::Scope;
 use rayon::prelude::*;
 
 use super::conv::{
-    BAND_PIXELS, EW_PIXELS, Hwc, PackedConv, centred_with_stats, constant_response, ha_mix, sigmoid,
+    BAND_PIXELS, EW_PIXELS, Hwc, PackedConv, centred_with_stats, constant_response, ha_mix,
+    sigmoid, wide,
 };
 use crate::error::Result;
 use crate::sgemm::{Mat, sgemm};
@@ -217,29 +218,34 @@ impl Mix {
             .zip(c1b.par_chunks(half * P))
             .enumerate()
             .for_each(|(chunk, ((o, m), c1))| {
-                // gate + bias, then the sigmoid over the whole contiguous block
-                // (a flat loop vectorises; a per-pixel one over `co` does not).
-                for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
-                    for ((o, &g), &b) in o.iter_mut().zip(&m[off..off + co]).zip(gate_b) {
-                        *o = g + b;
-                    }
-                }
-                o.iter_mut().for_each(|v| *v = sigmoid(*v));
-                let px = o
-                    .chunks_exact_mut(co)
-                    .zip(m.chunks_exact(cols))
-                    .zip(c1.chunks_exact(half));
-                for (i, ((o, m), c1)) in px.enumerate() {
-                    // Channels < half add inc1b, the rest inc2 (columns after the gate).
-                    let (inc2, feat) = m[off + co..feat0 + co].split_at(half);
-                    let (o_lo, o_hi) = o.split_at_mut(half);
-                    let (f_lo, f_hi) = feat.split_at(half);
-                    for k in 0..half {
-                        o_lo[k] = ha_mix(o_lo[k], f_lo[k], c1[k] + c1b_bias[k], slope);
-                        o_hi[k] = ha_mix(o_hi[k], f_hi[k], inc2[k] + inc2_b[k], slope);
-                    }
-                    post(first + chunk * P + i, o);
-                }
+                wide(
+                    #[inline(always)]
+                    || {
+                        // gate + bias, then the sigmoid over the whole contiguous block
+                        // (a flat loop vectorises; a per-pixel one over `co` does not).
+                        for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
+                            for ((o, &g), &b) in o.iter_mut().zip(&m[off..off + co]).zip(gate_b) {
+                                *o = g + b;
+                            }
+                        }
+                        o.iter_mut().for_each(|v| *v = sigmoid(*v));
+                        let px = o
+                            .chunks_exact_mut(co)
+                            .zip(m.chunks_exact(cols))
+                            .zip(c1.chunks_exact(half));
+                        for (i, ((o, m), c1)) in px.enumerate() {
+                            // Channels < half add inc1b, the rest inc2 (columns after the gate).
+                            let (inc2, feat) = m[off + co..feat0 + co].split_at(half);
+                            let (o_lo, o_hi) = o.split_at_mut(half);
+                            let (f_lo, f_hi) = feat.split_at(half);
+                            for k in 0..half {
+                                o_lo[k] = ha_mix(o_lo[k], f_lo[k], c1[k] + c1b_bias[k], slope);
+                                o_hi[k] = ha_mix(o_hi[k], f_hi[k], inc2[k] + inc2_b[k], slope);
+                            }
+                            post(first + chunk * P + i, o);
+                        }
+                    },
+                )
             });
         if let Some(d) = down {
             let s = feat0 + co;
@@ -247,11 +253,16 @@ impl Mix {
             d.par_chunks_mut(co * P)
                 .zip(main.par_chunks(cols * P))
                 .for_each(|(o, m)| {
-                    for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
-                        for ((o, &v), &b) in o.iter_mut().zip(&m[s..s + co]).zip(b) {
-                            *o = v + b;
-                        }
-                    }
+                    wide(
+                        #[inline(always)]
+                        || {
+                            for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
+                                for ((o, &v), &b) in o.iter_mut().zip(&m[s..s + co]).zip(b) {
+                                    *o = v + b;
+                                }
+                            }
+                        },
+                    )
                 });
         }
     }
@@ -454,12 +465,17 @@ impl Reverse {
                 .step_by(2)
                 .zip(sub.par_chunks(w * co))
                 .for_each(|(row, src)| {
-                    for (ix, v) in src.chunks_exact(co).enumerate() {
-                        let o = &mut row[(2 * ix + px) * co..(2 * ix + px + 1) * co];
-                        for ((o, &v), &b) in o.iter_mut().zip(v).zip(&self.up4_b) {
-                            *o = (v + b).max(0.0);
-                        }
-                    }
+                    wide(
+                        #[inline(always)]
+                        || {
+                            for (ix, v) in src.chunks_exact(co).enumerate() {
+                                let o = &mut row[(2 * ix + px) * co..(2 * ix + px + 1) * co];
+                                for ((o, &v), &b) in o.iter_mut().zip(v).zip(&self.up4_b) {
+                                    *o = (v + b).max(0.0);
+                                }
+                            }
+                        },
+                    )
                 });
         }
         let mut y = self.conv.run(&Hwc {
@@ -496,15 +512,20 @@ impl Reverse {
         y.d.par_chunks_mut(wo * co)
             .enumerate()
             .for_each(|(oy, row)| {
-                let (iy, py) = (oy / 2, oy % 2);
-                for ox in 0..wo {
-                    let (ix, px) = (ox / 2, ox % 2);
-                    let src = ((iy * w + ix) * 4 + py * 2 + px) * co;
-                    for k in 0..co {
-                        let v = &mut row[ox * co + k];
-                        *v = (*v + self.conv_b[k] + u[src + k] + self.up2_b[k]).max(0.0);
-                    }
-                }
+                wide(
+                    #[inline(always)]
+                    || {
+                        let (iy, py) = (oy / 2, oy % 2);
+                        for ox in 0..wo {
+                            let (ix, px) = (ox / 2, ox % 2);
+                            let src = ((iy * w + ix) * 4 + py * 2 + px) * co;
+                            for k in 0..co {
+                                let v = &mut row[ox * co + k];
+                                *v = (*v + self.conv_b[k] + u[src + k] + self.up2_b[k]).max(0.0);
+                            }
+                        }
+                    },
+                )
             });
         y
     }
