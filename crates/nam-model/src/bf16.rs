@@ -226,6 +226,7 @@ impl Bf16Dense {
 /// (`vcvtneps2bf16`, round to nearest even as [`to_bf16`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+#[inline]
 pub(crate) fn pack_row_avx512(row: &[f32], dst: &mut [u32]) {
     use std::arch::x86_64::*;
     let n = row.len();
@@ -239,6 +240,17 @@ pub(crate) fn pack_row_avx512(row: &[f32], dst: &mut [u32]) {
             let b: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(v));
             _mm256_mask_storeu_epi16(out.add(i), mask, b);
         }
+    }
+}
+
+/// [`pack_row_avx512`] for each of the pixels of `dst` (`cp` pairs each): pixel `i` reads the
+/// `2·cp` or `2·cp − 1` values from `src[i·stride]`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+pub(crate) fn pack_pixels_avx512(src: &[f32], stride: usize, cin: usize, dst: &mut [u32]) {
+    let cp = cin.div_ceil(2);
+    for (i, d) in dst.chunks_exact_mut(cp).enumerate() {
+        pack_row_avx512(&src[i * stride..i * stride + cin], d);
     }
 }
 

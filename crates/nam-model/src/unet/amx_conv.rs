@@ -222,10 +222,8 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> H
                         );
                     }
                 } else {
-                    for ix in 0..inner {
-                        let d = &mut dst[(p + ix) * cp..(p + ix + 1) * cp];
-                        unsafe { crate::bf16::pack_row_avx512(&src[ix * x.c..][..cin], d) };
-                    }
+                    let d = &mut dst[p * cp..(p + inner) * cp];
+                    unsafe { crate::bf16::pack_pixels_avx512(src, x.c, cin, d) };
                 }
                 for px in (0..p).chain(p + inner..wp) {
                     let from = px.saturating_sub(p).min(x.w - 1) + p;
