@@ -166,7 +166,50 @@ pub(crate) unsafe fn dot_block(
     }
 }
 
-/// The block's sums in [`store_sums`] order: (row offset, column offset) of each 16 × 16 tile.
+/// Adds one k-step of 16 pairs to a 64 × 16 block (the shape for 16 output columns or fewer):
+/// rows `16i..16i + 16` from the A tile at `a[i]` (`sa` bytes between rows), every column from
+/// the B tile at `b` (`sb` bytes between rows). Its sums are tmm4–7 as in [`dot_block`]; sum `i`
+/// holds rows `16i..16i + 16` ([`COLUMN_SUMS`]).
+///
+/// # Safety
+/// As [`dot_block`].
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn dot_column(
+    [a0, a1, a2, a3]: [*const u32; 4],
+    sa: usize,
+    b: *const u32,
+    sb: usize,
+) {
+    // SAFETY: the caller's contract.
+    unsafe {
+        std::arch::asm!(
+            "tileloadd tmm2, [{b} + {sb}*1]",
+            "tileloadd tmm0, [{a0} + {sa}*1]",
+            "tileloadd tmm1, [{a1} + {sa}*1]",
+            "tdpbf16ps tmm4, tmm0, tmm2",
+            "tdpbf16ps tmm5, tmm1, tmm2",
+            "tileloadd tmm0, [{a2} + {sa}*1]",
+            "tileloadd tmm1, [{a3} + {sa}*1]",
+            "tdpbf16ps tmm6, tmm0, tmm2",
+            "tdpbf16ps tmm7, tmm1, tmm2",
+            a0 = in(reg) a0,
+            a1 = in(reg) a1,
+            a2 = in(reg) a2,
+            a3 = in(reg) a3,
+            b = in(reg) b,
+            sa = in(reg) sa,
+            sb = in(reg) sb,
+            options(nostack, readonly)
+        );
+    }
+}
+
+/// The sums of a [`dot_column`] block in [`store_sum`] order: (row offset, column offset).
+pub(crate) const COLUMN_SUMS: [(usize, usize); 4] =
+    [(0, 0), (TILE, 0), (2 * TILE, 0), (3 * TILE, 0)];
+
+/// The block's sums in [`store_sum`] order: (row offset, column offset) of each 16 × 16 tile.
 pub(crate) const SUMS: [(usize, usize); 4] = [(0, 0), (0, TILE), (TILE, 0), (TILE, TILE)];
 
 /// Stores sum `t` of the block ([`SUMS`]`[t]`) as 16 rows of 16 f32 at `dst`, `stride` bytes

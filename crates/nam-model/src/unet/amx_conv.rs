@@ -15,6 +15,7 @@
 // Elsewhere only `available()` is reachable (false): the kernel is x86-64 code.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
+use std::mem::MaybeUninit;
 use std::ops::Range;
 
 use rayon::prelude::*;
@@ -39,7 +40,11 @@ struct Shape {
     /// Pairs per kernel row of the weights: `k·cp` padded to whole tiles ([`K_PAIRS`]).
     kd: usize,
     cout: usize,
-    /// Output columns of the weights: `cout` padded to whole blocks ([`N_BLOCK`]).
+    /// At most 16 output columns: blocks of 64 pixels × 16 columns ([`amx::dot_column`]), not
+    /// 32 × 32 ([`amx::dot_block`]), so that fewer padding columns are summed.
+    narrow: bool,
+    /// Output columns of the weights: `cout` padded to whole blocks (16 when narrow, else a
+    /// multiple of [`N_BLOCK`]).
     op: usize,
     /// Output pixels per row.
     wo: usize,
@@ -50,13 +55,19 @@ struct Shape {
 impl Shape {
     fn new(conv: &PackedConv, wo: usize) -> Self {
         let cp = conv.cin.div_ceil(2);
+        let narrow = conv.cout <= TILE;
         Self {
             k: conv.k,
             stride: conv.stride,
             cp,
             kd: (conv.k * cp).next_multiple_of(K_PAIRS),
             cout: conv.cout,
-            op: conv.cout.next_multiple_of(N_BLOCK),
+            narrow,
+            op: if narrow {
+                TILE
+            } else {
+                conv.cout.next_multiple_of(N_BLOCK)
+            },
             wo,
             wp: (wo - 1) * conv.stride + conv.k,
         }
@@ -88,25 +99,27 @@ impl Shape {
             + K_PAIRS
     }
 
-    /// Writes the `n_rows` output rows of a band (`dst`, `n_rows·wo·cout`) from its padded input
-    /// `pad` ([`Self::pad_len`]) and the packed weights `w` ([`Self::pack`]).
+    /// Writes every value of the `n_rows` output rows of a band (`dst`, `n_rows·wo·cout`) from
+    /// its padded input `pad` ([`Self::pad_len`]) and the packed weights `w` ([`Self::pack`]):
+    /// the tiles cover every pixel of every row, the blocks every column.
     ///
     /// # Safety
     /// [`available`].
     #[cfg(target_arch = "x86_64")]
-    unsafe fn band(&self, pad: &[u32], w: &[u32], dst: &mut [f32], n_rows: usize) {
+    unsafe fn band(&self, pad: &[u32], w: &[u32], dst: &mut [MaybeUninit<f32>], n_rows: usize) {
         let &Self {
             k,
             stride: s,
             cp,
             kd,
             cout,
+            narrow,
             op,
             wo,
             wp,
         } = self;
         // Tiles of 16 pixels along each row (the last one overlapping its neighbour; one
-        // partly filled tile for a row narrower than that), taken two at a time.
+        // partly filled tile for a row narrower than that), taken two (narrow: four) at a time.
         let starts: Vec<usize> = if wo >= TILE {
             direct::tile_starts(wo, TILE).collect()
         } else {
@@ -115,7 +128,12 @@ impl Shape {
         let mut tiles: Vec<(usize, usize)> = (0..n_rows)
             .flat_map(|r| starts.iter().map(move |&ox| (r, ox)))
             .collect();
-        if tiles.len() % 2 == 1 {
+        let (group, block_cols, sums) = if narrow {
+            (4, TILE, &amx::COLUMN_SUMS)
+        } else {
+            (2, N_BLOCK, &amx::SUMS)
+        };
+        while !tiles.len().is_multiple_of(group) {
             tiles.push(tiles[tiles.len() - 1]);
         }
         // Every A tile lies inside `pad` (the last one reads farthest), every B tile inside `w`.
@@ -128,32 +146,43 @@ impl Shape {
         // and `w` by the checks above, the stores inside `dst` (a whole 16 × 16 tile only where
         // its pixels and columns exist) or `c`.
         unsafe { amx::configure() };
-        for pair in tiles.chunks_exact(2) {
-            let a = [pair[0], pair[1]].map(|(r, ox)| pad[(r * s * wp + ox * s) * cp..].as_ptr());
-            for o0 in (0..cout).step_by(N_BLOCK) {
+        for set in tiles.chunks_exact(group) {
+            let a: [*const u32; 4] = std::array::from_fn(|i| {
+                let (r, ox) = set[i.min(group - 1)];
+                pad[(r * s * wp + ox * s) * cp..].as_ptr()
+            });
+            for o0 in (0..cout).step_by(block_cols) {
                 unsafe { amx::zero_block() };
                 for ky in 0..k {
                     for j0 in (0..kd).step_by(K_PAIRS) {
                         let off = ky * wp * cp + j0;
                         let b = w[(ky * kd + j0) * op + o0..].as_ptr();
+                        let a = a.map(|p| unsafe { p.add(off) });
                         unsafe {
-                            amx::dot_block(a.map(|p| p.add(off)), sa, [b, b.add(TILE)], sb);
+                            if narrow {
+                                amx::dot_column(a, sa, b, sb);
+                            } else {
+                                amx::dot_block([a[0], a[1]], sa, [b, b.add(TILE)], sb);
+                            }
                         }
                     }
                 }
-                for (t, &(di, dj)) in amx::SUMS.iter().enumerate() {
-                    let ((r, ox), o) = (pair[di / TILE], o0 + dj);
+                for (t, &(di, dj)) in sums.iter().enumerate() {
+                    let ((r, ox), o) = (set[di / TILE], o0 + dj);
                     if o >= cout {
                         continue;
                     }
                     let (pixels, cols) = ((wo - ox).min(TILE), (cout - o).min(TILE));
                     let at = (r * wo + ox) * cout + o;
                     if pixels == TILE && cols == TILE {
-                        unsafe { amx::store_sum(t, dst[at..].as_mut_ptr(), 4 * cout) };
+                        unsafe { amx::store_sum(t, dst[at..].as_mut_ptr().cast(), 4 * cout) };
                     } else {
                         unsafe { amx::store_sum(t, c.as_mut_ptr().cast(), 4 * TILE) };
                         for (i, row) in c.iter().enumerate().take(pixels) {
-                            dst[at + i * cout..][..cols].copy_from_slice(&row[..cols]);
+                            let d = &mut dst[at + i * cout..][..cols];
+                            d.iter_mut().zip(row).for_each(|(d, &v)| {
+                                d.write(v);
+                            });
                         }
                     }
                 }
@@ -187,9 +216,12 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> H
     let shape = Shape::new(conv, wo);
     let w = shape.pack(wt, cin);
     let band = direct::band_rows(x.w, s, rows.len());
-    let mut out = vec![0.0f32; rows.len() * wo * cout];
+    // Not zeroed first: `Shape::band` writes every value.
+    let n = rows.len() * wo * cout;
+    let mut out: Vec<f32> = Vec::with_capacity(n);
     let first = rows.start;
-    out.par_chunks_mut(band * wo * cout)
+    out.spare_capacity_mut()[..n]
+        .par_chunks_mut(band * wo * cout)
         .enumerate()
         .for_each_init(Vec::new, |pad: &mut Vec<u32>, (b, dst)| {
             let oy0 = first + b * band;
@@ -233,6 +265,8 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> H
             // SAFETY: AMX (`available`, asserted by the caller).
             unsafe { shape.band(pad, &w, dst, n_rows) };
         });
+    // SAFETY: the bands cover the `n` values, and `Shape::band` wrote each of its band's.
+    unsafe { out.set_len(n) };
     Hwc {
         h: rows.len(),
         w: wo,
