@@ -9,6 +9,7 @@ use super::conv::{
     BAND_PIXELS, EW_PIXELS, Hwc, PackedConv, centred_with_stats, constant_response, ha_mix,
     sigmoid, wide,
 };
+use crate::bf16::Bf16Dense;
 use crate::error::Result;
 use crate::sgemm::{Mat, sgemm};
 
@@ -355,6 +356,15 @@ pub(super) struct Reverse {
     /// `[cin, 4·cout]`, column `(py·2 + px)·cout + co`.
     pub(super) up2: Vec<f32>,
     pub(super) up2_b: Vec<f32>,
+    /// `up4` and `up2` with bf16 products and f32 sums ([`Self::set_bf16`]).
+    bf16: Option<Box<ReverseBf16>>,
+}
+
+/// The GEMMs of a [`Reverse`] as bf16 dense layers (AMX tiles where the CPU has them).
+#[derive(Debug, Clone)]
+struct ReverseBf16 {
+    up4: [Bf16Dense; 4],
+    up2: Bf16Dense,
 }
 
 /// For output parity p, the two input offsets and the kernel taps they use
@@ -404,7 +414,27 @@ impl Reverse {
             conv_b: p.get("conv.bias", &[cout])?.to_vec(),
             up2,
             up2_b: p.get("up2.bias", &[cout])?.to_vec(),
+            bf16: None,
         })
+    }
+
+    /// bf16 products and f32 sums in `up4` and `up2` (`on`), or f32 again; its 3×3 conv follows
+    /// its own flag. Only where [`crate::bf16_supported`].
+    pub(super) fn set_bf16(&mut self, on: bool) {
+        // Bf16Dense takes W as [out, inp]: the transpose of the GEMMs' [inp, out].
+        let dense = |wt: &[f32], inp: usize, out: usize| {
+            let t: Vec<f32> = (0..out * inp)
+                .map(|i| wt[(i % inp) * out + i / inp])
+                .collect();
+            Bf16Dense::new(&t, out, inp, None)
+        };
+        let (ci, co) = (self.cin, self.cout);
+        self.bf16 = on.then(|| {
+            Box::new(ReverseBf16 {
+                up4: std::array::from_fn(|p| dense(&self.up4[p], 4 * ci, co)),
+                up2: dense(&self.up2, ci, 4 * co),
+            })
+        });
     }
 
     #[allow(clippy::needless_range_loop)]
@@ -419,8 +449,8 @@ impl Reverse {
             let (py, px) = (par / 2, par % 2);
             let mut sub = vec![0.0f32; h * w * co];
             sub.par_chunks_mut(rows * w * co).enumerate().for_each_init(
-                Vec::new,
-                |col: &mut Vec<f32>, (band, dst)| {
+                || (Vec::new(), Vec::new()),
+                |(col, pairs): &mut (Vec<f32>, Vec<u32>), (band, dst)| {
                     let m = dst.len() / co;
                     col.clear();
                     col.resize(m * kk, 0.0);
@@ -442,6 +472,10 @@ impl Reverse {
                                 col[t..t + ci].copy_from_slice(&x.d[src..src + ci]);
                             }
                         }
+                    }
+                    if let Some(b) = &self.bf16 {
+                        b.up4[par].forward(m, col, kk, dst, co, pairs);
+                        return;
                     }
                     sgemm(
                         m,
@@ -488,17 +522,19 @@ impl Reverse {
         let mut u = vec![0.0f32; h * w * 4 * co];
         u.par_chunks_mut(BAND_PIXELS * 4 * co)
             .enumerate()
-            .for_each(|(band, dst)| {
+            .for_each_init(Vec::new, |pairs, (band, dst)| {
                 let m = dst.len() / (4 * co);
                 let p0 = band * BAND_PIXELS;
+                let a = &x.d[p0 * ci..(p0 + m) * ci];
+                if let Some(b) = &self.bf16 {
+                    b.up2.forward(m, a, ci, dst, 4 * co, pairs);
+                    return;
+                }
                 sgemm(
                     m,
                     4 * co,
                     ci,
-                    Mat {
-                        data: &x.d[p0 * ci..(p0 + m) * ci],
-                        ld: ci,
-                    },
+                    Mat { data: a, ld: ci },
                     Mat {
                         data: &self.up2,
                         ld: 4 * co,

@@ -135,10 +135,10 @@ impl UNet {
         })
     }
 
-    /// The same network with bf16 products and f32 sums in its k×k convolutions (the
-    /// ReverseBlocks' transposed convs stay f32), where the CPU has AVX-512 BF16: about twice the
-    /// products per instruction (`vdpbf16ps`), or on AMX tiles where the CPU has AMX-BF16
-    /// (`amx_conv.rs`; [`crate::bf16_kernel`] names the one used), the param map within
+    /// The same network with bf16 products and f32 sums in its convolutions, where the CPU has
+    /// AVX-512 BF16: about twice the products per instruction (`vdpbf16ps`), or on AMX tiles
+    /// where the CPU has AMX-BF16 (`amx_conv.rs`, and the ReverseBlocks' GEMMs as bf16 dense
+    /// layers; [`crate::bf16_kernel`] names the one used), the param map within
     /// [`BF16_PARAM_TOL`] of f32's. Errors when the CPU lacks the instructions.
     pub fn with_bf16(mut self) -> Result<Self> {
         if !direct::available_bf16() {
@@ -158,6 +158,9 @@ impl UNet {
 
     fn set_bf16(&mut self, on: bool) {
         self.convs_mut().into_iter().for_each(|c| c.bf16 = on);
+        for r in [&mut self.dec1.0, &mut self.dec2.0, &mut self.dec3.0] {
+            r.set_bf16(on);
+        }
     }
 
     /// The same network with every conv on the direct tiles (or im2col), none as Winograd: the
