@@ -209,42 +209,26 @@ impl Mix {
         down: Option<&mut [f32]>,
         post: &(impl Fn(usize, &mut [f32]) + Sync),
     ) {
-        let (co, cols, off, slope) = (self.co, self.cols, self.off, self.slope);
+        let (co, cols, off) = (self.co, self.cols, self.off);
         let half = co / 2;
         let feat0 = off + co + half;
         const P: usize = EW_PIXELS;
-        let (gate_b, inc2_b) = self.bias[off..feat0].split_at(co);
         out.par_chunks_mut(co * P)
             .zip(main.par_chunks(cols * P))
             .zip(c1b.par_chunks(half * P))
             .enumerate()
             .for_each(|(chunk, ((o, m), c1))| {
+                let at = first + chunk * P;
+                // The common widths as constants, so the per-pixel loops unroll into whole
+                // vectors (`CO = 0`: any width).
                 wide(
                     #[inline(always)]
-                    || {
-                        // gate + bias, then the sigmoid over the whole contiguous block
-                        // (a flat loop vectorises; a per-pixel one over `co` does not).
-                        for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
-                            for ((o, &g), &b) in o.iter_mut().zip(&m[off..off + co]).zip(gate_b) {
-                                *o = g + b;
-                            }
-                        }
-                        o.iter_mut().for_each(|v| *v = sigmoid(*v));
-                        let px = o
-                            .chunks_exact_mut(co)
-                            .zip(m.chunks_exact(cols))
-                            .zip(c1.chunks_exact(half));
-                        for (i, ((o, m), c1)) in px.enumerate() {
-                            // Channels < half add inc1b, the rest inc2 (columns after the gate).
-                            let (inc2, feat) = m[off + co..feat0 + co].split_at(half);
-                            let (o_lo, o_hi) = o.split_at_mut(half);
-                            let (f_lo, f_hi) = feat.split_at(half);
-                            for k in 0..half {
-                                o_lo[k] = ha_mix(o_lo[k], f_lo[k], c1[k] + c1b_bias[k], slope);
-                                o_hi[k] = ha_mix(o_hi[k], f_hi[k], inc2[k] + inc2_b[k], slope);
-                            }
-                            post(first + chunk * P + i, o);
-                        }
+                    || match co {
+                        8 => self.pixels::<8>(co, at, o, m, c1, c1b_bias, post),
+                        16 => self.pixels::<16>(co, at, o, m, c1, c1b_bias, post),
+                        32 => self.pixels::<32>(co, at, o, m, c1, c1b_bias, post),
+                        64 => self.pixels::<64>(co, at, o, m, c1, c1b_bias, post),
+                        _ => self.pixels::<0>(co, at, o, m, c1, c1b_bias, post),
                     },
                 )
             });
@@ -265,6 +249,52 @@ impl Mix {
                         },
                     )
                 });
+        }
+    }
+}
+
+impl Mix {
+    /// [`Self::run`] for one block of pixels, the first of them pixel `first`: `co` output
+    /// channels (`CO` when it is not 0, a constant the loops unroll to).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn pixels<const CO: usize>(
+        &self,
+        co: usize,
+        first: usize,
+        o: &mut [f32],
+        m: &[f32],
+        c1: &[f32],
+        c1b_bias: &[f32],
+        post: &(impl Fn(usize, &mut [f32]) + Sync),
+    ) {
+        let co = if CO > 0 { CO } else { co };
+        let (cols, off, slope) = (self.cols, self.off, self.slope);
+        let half = co / 2;
+        let feat0 = off + co + half;
+        let (gate_b, inc2_b) = self.bias[off..feat0].split_at(co);
+        // gate + bias, then the sigmoid over the whole contiguous block
+        // (a flat loop vectorises; a per-pixel one over `co` does not).
+        for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
+            for ((o, &g), &b) in o.iter_mut().zip(&m[off..off + co]).zip(gate_b) {
+                *o = g + b;
+            }
+        }
+        o.iter_mut().for_each(|v| *v = sigmoid(*v));
+        let px = o
+            .chunks_exact_mut(co)
+            .zip(m.chunks_exact(cols))
+            .zip(c1.chunks_exact(half));
+        for (i, ((o, m), c1)) in px.enumerate() {
+            // Channels < half add inc1b, the rest inc2 (columns after the gate).
+            let (inc2, feat) = m[off + co..feat0 + co].split_at(half);
+            let (o_lo, o_hi) = o.split_at_mut(half);
+            let (f_lo, f_hi) = feat.split_at(half);
+            for k in 0..half {
+                o_lo[k] = ha_mix(o_lo[k], f_lo[k], c1[k] + c1b_bias[k], slope);
+                o_hi[k] = ha_mix(o_hi[k], f_hi[k], inc2[k] + inc2_b[k], slope);
+            }
+            post(first + i, o);
         }
     }
 }
@@ -615,5 +645,39 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn mix_with_a_constant_width_equals_the_any_width_loop() {
+        // A stride-1 HA-Conv's columns: [inc1a | gate | inc2 | feat], co = 16.
+        let (co, half) = (16, 8);
+        let cols = 3 * co + half;
+        let mix = Mix {
+            cols,
+            co,
+            off: co,
+            bias: (0..cols).map(|i| (i as f32 * 0.37).sin()).collect(),
+            slope: 0.01,
+        };
+        let n = 37;
+        let m: Vec<f32> = (0..n * cols)
+            .map(|i| (i as f32 * 0.11).cos() * 3.0)
+            .collect();
+        let c1: Vec<f32> = (0..n * half).map(|i| (i as f32 * 0.23).sin()).collect();
+        let c1b_bias: Vec<f32> = (0..half).map(|i| i as f32 * 0.1 - 0.4).collect();
+        let post =
+            |p: usize, px: &mut [f32]| px.iter_mut().for_each(|v| *v = (*v + p as f32).max(0.0));
+        let run = |constant: bool| {
+            let mut o = vec![0.0f32; n * co];
+            if constant {
+                mix.pixels::<16>(co, 5, &mut o, &m, &c1, &c1b_bias, &post);
+            } else {
+                mix.pixels::<0>(co, 5, &mut o, &m, &c1, &c1b_bias, &post);
+            }
+            o
+        };
+        let (a, b) = (run(true), run(false));
+        assert!(a.iter().any(|&v| v > 0.0));
+        assert_eq!(a, b);
     }
 }
