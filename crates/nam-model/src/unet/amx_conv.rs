@@ -20,7 +20,7 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use super::conv::{Hwc, PackedConv};
+use super::conv::{Hwc, PackedConv, min_len};
 use super::direct;
 use crate::amx::{self, K_PAIRS, N_BLOCK, TILE};
 use crate::bf16::to_bf16;
@@ -222,6 +222,7 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> H
     let first = rows.start;
     out.spare_capacity_mut()[..n]
         .par_chunks_mut(band * wo * cout)
+        .with_min_len(min_len())
         .enumerate()
         .for_each_init(Vec::new, |pad: &mut Vec<u32>, (b, dst)| {
             let oy0 = first + b * band;

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use super::conv::{
     BAND_PIXELS, EW_PIXELS, Hwc, PackedConv, centred_with_stats, constant_response, ha_mix,
-    sigmoid, wide,
+    min_len, on_this_thread, sigmoid, wide,
 };
 use crate::bf16::Bf16Dense;
 use crate::error::Result;
@@ -101,13 +101,12 @@ impl Ha {
         }
         let f32s = |v: &[f64]| -> Vec<f32> { v.iter().map(|&b| b as f32).collect() };
         let (h, w) = self.main.out_size(x);
-        // Allocated once the centred copy is gone where the image is one band, so the two
-        // are not held together.
+        // At stride 2 allocated once the centred copy is gone, so the two are not held together.
         let outputs = || {
             let d = self.has_down.then(|| vec![0.0f32; h * w * co]);
             (vec![0.0f32; h * w * co], d)
         };
-        let (mut out, mut down) = (Vec::new(), None);
+        let (mut out, mut down): (Vec<f32>, Option<Vec<f32>>);
         let mix = Mix {
             cols,
             co,
@@ -134,42 +133,52 @@ impl Ha {
                     &post,
                 );
             }
-            // Stride 1: the fused GEMM and inc1b run over bands of output rows, so their
-            // 7·C/2 + C/2 columns are never held for the whole image. inc1b (3×3) reads inc1a
-            // one row beyond the band: those halo rows are computed too, and inc1b's
-            // replicate padding at a band edge only touches halo outputs, which are dropped.
+            // Stride 1: the fused GEMM and inc1b run over bands of output rows, the bands in
+            // parallel, so their 7·C/2 + C/2 columns are never held for the whole image and are
+            // read back from cache. inc1b (3×3) reads inc1a one row beyond the band: those halo
+            // rows are computed too, and inc1b's replicate padding at a band edge only touches
+            // halo outputs, which are dropped.
             None => {
                 // inc1a without its bias sits in columns 0..co of `main` (read as a view);
                 // inc1b of that constant bias image is again a constant.
                 let c1b_bias = f32s(&constant_response(&self.inc1b, &bias[..co]));
-                let band = (self.band_pixels / w).max(1);
-                let mut xc = Some(xc);
-                for y0 in (0..h).step_by(band) {
-                    let y1 = (y0 + band).min(h);
-                    let (a, b) = (y0.saturating_sub(1), (y1 + 1).min(h));
-                    let main =
-                        self.main
-                            .run_rows(xc.as_ref().expect("until the last band"), &wt, a..b);
-                    if y1 == h {
-                        // The last band's GEMM was the centred copy's last reader.
-                        xc = None;
-                    }
-                    if out.is_empty() {
-                        (out, down) = outputs();
-                    }
-                    let c1b = self.inc1b.run(&main);
-                    let rows = (y0 - a) * w..(y1 - a) * w;
-                    let pixels = y0 * w..y1 * w;
-                    mix.run(
-                        &main.d[rows.start * cols..rows.end * cols],
-                        &c1b.d[rows.start * half..rows.end * half],
-                        &c1b_bias,
-                        pixels.start,
-                        &mut out[pixels.start * co..pixels.end * co],
-                        down.as_deref_mut()
-                            .map(|d| &mut d[pixels.start * co..pixels.end * co]),
-                        &post,
-                    );
+                // At least two bands per thread where the image has the rows (each band runs on
+                // one thread), at most `band_pixels` pixels each.
+                let threads = rayon::current_num_threads();
+                let band = (self.band_pixels / w).clamp(1, h.div_ceil(2 * threads).max(1));
+                (out, down) = outputs();
+                let main_wt = self.main.prepare(&xc, &wt);
+                // One band on one thread: the fused GEMM of its rows (and a halo row either
+                // side), inc1b, the mix, while its GEMM output is still in cache.
+                let run_band = |y0: usize, o: &mut [f32], d: Option<&mut [f32]>| {
+                    on_this_thread(|| {
+                        let y1 = (y0 + band).min(h);
+                        let (a, b) = (y0.saturating_sub(1), (y1 + 1).min(h));
+                        let main = self.main.run_prepared(&xc, &main_wt, a..b);
+                        let c1b = self.inc1b.run(&main);
+                        let rows = (y0 - a) * w..(y1 - a) * w;
+                        mix.run(
+                            &main.d[rows.start * cols..rows.end * cols],
+                            &c1b.d[rows.start * half..rows.end * half],
+                            &c1b_bias,
+                            y0 * w,
+                            o,
+                            d,
+                            &post,
+                        );
+                    })
+                };
+                let chunk = band * w * co;
+                match down.as_deref_mut() {
+                    Some(d) => out
+                        .par_chunks_mut(chunk)
+                        .zip(d.par_chunks_mut(chunk))
+                        .enumerate()
+                        .for_each(|(i, (o, d))| run_band(i * band, o, Some(d))),
+                    None => out
+                        .par_chunks_mut(chunk)
+                        .enumerate()
+                        .for_each(|(i, o)| run_band(i * band, o, None)),
                 }
             }
         }
@@ -178,9 +187,11 @@ impl Ha {
     }
 }
 
-/// Pixels per band of a stride-1 HA-Conv (about 15 MB of GEMM output at C = 8; a 256² image
-/// is one band).
-pub(super) const HA_BAND_PIXELS: usize = 1 << 16;
+/// Pixels per band of a stride-1 HA-Conv: its GEMM output (0.9 MB at C = 8, 1.8 MB at C = 16)
+/// stays in a core's L2 until inc1b and the mix have read it. Bands run in parallel; the halo
+/// rows cost 2 GEMM rows a band (measured: 8192 pixels beat 4096, 16384 and one band for the
+/// whole image, docs/perf/unet_cpu.md).
+pub(super) const HA_BAND_PIXELS: usize = 1 << 13;
 
 /// The element-wise end of an HA-Conv over a run of pixels: gate, InstanceNorm'd feat, inc
 /// branches and the fused `down`, from the fused GEMM's columns.
@@ -214,6 +225,7 @@ impl Mix {
         let feat0 = off + co + half;
         const P: usize = EW_PIXELS;
         out.par_chunks_mut(co * P)
+            .with_min_len(min_len())
             .zip(main.par_chunks(cols * P))
             .zip(c1b.par_chunks(half * P))
             .enumerate()
@@ -236,6 +248,7 @@ impl Mix {
             let s = feat0 + co;
             let b = &self.bias[s..s + co];
             d.par_chunks_mut(co * P)
+                .with_min_len(min_len())
                 .zip(main.par_chunks(cols * P))
                 .for_each(|(o, m)| {
                     wide(
@@ -478,53 +491,57 @@ impl Reverse {
         for par in 0..4 {
             let (py, px) = (par / 2, par % 2);
             let mut sub = vec![0.0f32; h * w * co];
-            sub.par_chunks_mut(rows * w * co).enumerate().for_each_init(
-                || (Vec::new(), Vec::new()),
-                |(col, pairs): &mut (Vec<f32>, Vec<u32>), (band, dst)| {
-                    let m = dst.len() / co;
-                    col.clear();
-                    col.resize(m * kk, 0.0);
-                    let p0 = band * rows * w;
-                    for p in 0..m {
-                        let (iy, ix) = ((p0 + p) / w, (p0 + p) % w);
-                        for ty in 0..2 {
-                            let sy = iy as isize + UP4_TAPS[py][ty].0;
-                            if sy < 0 || sy >= h as isize {
-                                continue;
-                            }
-                            for tx in 0..2 {
-                                let sx = ix as isize + UP4_TAPS[px][tx].0;
-                                if sx < 0 || sx >= w as isize {
+            sub.par_chunks_mut(rows * w * co)
+                .with_min_len(min_len())
+                .enumerate()
+                .for_each_init(
+                    || (Vec::new(), Vec::new()),
+                    |(col, pairs): &mut (Vec<f32>, Vec<u32>), (band, dst)| {
+                        let m = dst.len() / co;
+                        col.clear();
+                        col.resize(m * kk, 0.0);
+                        let p0 = band * rows * w;
+                        for p in 0..m {
+                            let (iy, ix) = ((p0 + p) / w, (p0 + p) % w);
+                            for ty in 0..2 {
+                                let sy = iy as isize + UP4_TAPS[py][ty].0;
+                                if sy < 0 || sy >= h as isize {
                                     continue;
                                 }
-                                let src = (sy as usize * w + sx as usize) * ci;
-                                let t = p * kk + (ty * 2 + tx) * ci;
-                                col[t..t + ci].copy_from_slice(&x.d[src..src + ci]);
+                                for tx in 0..2 {
+                                    let sx = ix as isize + UP4_TAPS[px][tx].0;
+                                    if sx < 0 || sx >= w as isize {
+                                        continue;
+                                    }
+                                    let src = (sy as usize * w + sx as usize) * ci;
+                                    let t = p * kk + (ty * 2 + tx) * ci;
+                                    col[t..t + ci].copy_from_slice(&x.d[src..src + ci]);
+                                }
                             }
                         }
-                    }
-                    if let Some(b) = &self.bf16 {
-                        b.up4[par].forward(m, col, kk, dst, co, pairs);
-                        return;
-                    }
-                    sgemm(
-                        m,
-                        co,
-                        kk,
-                        Mat { data: col, ld: kk },
-                        Mat {
-                            data: &self.up4[par],
-                            ld: co,
-                        },
-                        dst,
-                        co,
-                        false,
-                        1,
-                    );
-                },
-            );
+                        if let Some(b) = &self.bf16 {
+                            b.up4[par].forward(m, col, kk, dst, co, pairs);
+                            return;
+                        }
+                        sgemm(
+                            m,
+                            co,
+                            kk,
+                            Mat { data: col, ld: kk },
+                            Mat {
+                                data: &self.up4[par],
+                                ld: co,
+                            },
+                            dst,
+                            co,
+                            false,
+                            1,
+                        );
+                    },
+                );
             // Output rows of parity py take input row oy / 2, pixels of parity px.
             y.par_chunks_mut(wo * co)
+                .with_min_len(min_len())
                 .skip(py)
                 .step_by(2)
                 .zip(sub.par_chunks(w * co))
@@ -551,6 +568,7 @@ impl Reverse {
         // up2: [h·w, 4·co], scattered and added with both biases, then relu.
         let mut u = vec![0.0f32; h * w * 4 * co];
         u.par_chunks_mut(BAND_PIXELS * 4 * co)
+            .with_min_len(min_len())
             .enumerate()
             .for_each_init(Vec::new, |pairs, (band, dst)| {
                 let m = dst.len() / (4 * co);
@@ -576,6 +594,7 @@ impl Reverse {
                 );
             });
         y.d.par_chunks_mut(wo * co)
+            .with_min_len(min_len())
             .enumerate()
             .for_each(|(oy, row)| {
                 wide(

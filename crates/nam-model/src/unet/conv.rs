@@ -44,6 +44,15 @@ pub(super) struct PackedConv {
     pub(super) winograd: bool,
 }
 
+/// A conv's weights prepared for the kernel that runs it ([`PackedConv::prepare`]).
+pub(super) enum Prepared<'a> {
+    /// Transformed for Winograd, one GEMM operand per point.
+    Winograd(Vec<direct::Gemm>),
+    /// Packed as [`PackedConv::wt`]; each kernel repacks them per call (cheap beside the
+    /// products).
+    Packed(&'a [f32]),
+}
+
 impl PackedConv {
     /// Fuses convs over the same input; each part is `(weight [co, cin, kp, kp], co, kp)`
     /// with `kp == k` or `kp == 1` (a 1×1 conv placed at the centre tap; valid
@@ -109,14 +118,35 @@ impl PackedConv {
     /// ([`winograd::applies`]), else a direct convolution (faster than im2col at every width
     /// here, 4 outputs included: docs/perf/unet_cpu.md); elsewhere im2col + GEMM.
     pub(super) fn run_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
-        if self.bf16 && amx_conv::available() {
-            amx_conv::run_rows(self, x, wt, rows)
-        } else if winograd::applies(self, x) {
-            winograd::run_rows(self, x, wt, rows)
-        } else if direct::available() {
-            direct::run_rows(self, x, wt, rows, self.bf16)
+        self.run_prepared(x, &self.prepare(x, wt), rows)
+    }
+
+    /// The weights `wt` as the kernel that runs this conv on `x` reads them, for any number of
+    /// [`Self::run_prepared`] calls on `x`: transformed once for Winograd, else as they are.
+    pub(super) fn prepare<'a>(&self, x: &Hwc, wt: &'a [f32]) -> Prepared<'a> {
+        if winograd::applies(self, x) {
+            Prepared::Winograd(winograd::transform_weights(self, wt))
         } else {
-            self.im2col_rows(x, wt, rows)
+            Prepared::Packed(wt)
+        }
+    }
+
+    /// [`Self::run_rows`] with weights from [`Self::prepare`] on the same `x`.
+    pub(super) fn run_prepared(
+        &self,
+        x: &Hwc,
+        wt: &Prepared<'_>,
+        rows: std::ops::Range<usize>,
+    ) -> Hwc {
+        match *wt {
+            Prepared::Winograd(ref gemms) => winograd::run_rows(self, x, gemms, rows),
+            Prepared::Packed(wt) if self.bf16 && amx_conv::available() => {
+                amx_conv::run_rows(self, x, wt, rows)
+            }
+            Prepared::Packed(wt) if direct::available() => {
+                direct::run_rows(self, x, wt, rows, self.bf16)
+            }
+            Prepared::Packed(wt) => self.im2col_rows(x, wt, rows),
         }
     }
 
@@ -133,6 +163,7 @@ impl PackedConv {
         let rows = (BAND_PIXELS / wo).max(1);
         let mut out = vec![0.0f32; ho * wo * self.cout];
         out.par_chunks_mut(rows * wo * self.cout)
+            .with_min_len(min_len())
             .enumerate()
             .for_each_init(
                 || (Vec::new(), Vec::new()),
@@ -213,6 +244,33 @@ impl PackedConv {
     }
 }
 
+std::thread_local! {
+    /// Set while [`on_this_thread`] runs: the parallel loops of the convolutions and
+    /// element-wise passes then run on the calling thread ([`min_len`]).
+    static ON_THIS_THREAD: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// The `with_min_len` of every parallel loop of the U-Net: 1 (rayon splits as it likes), or
+/// inside [`on_this_thread`] all of the loop (one job, on the calling thread).
+pub(super) fn min_len() -> usize {
+    if ON_THIS_THREAD.get() { usize::MAX } else { 1 }
+}
+
+/// Runs `f` with the U-Net's parallel loops on the calling thread: for work that is already one
+/// of several parallel tasks (the bands of an HA-Conv), so that a thread never waits inside one
+/// task for another's help and meanwhile starts a further task, holding both tasks' buffers.
+pub(super) fn on_this_thread<R>(f: impl FnOnce() -> R) -> R {
+    /// Restores the flag when `f` returns or unwinds.
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            ON_THIS_THREAD.set(self.0);
+        }
+    }
+    let _restore = Restore(ON_THIS_THREAD.replace(true));
+    f()
+}
+
 /// Runs `f` compiled for AVX-512 (512-bit vectors) where the CPU has AVX-512F/VL/BW/DQ and FMA,
 /// else as it is: the element-wise passes are plain loops, which the default x86-64 target
 /// vectorises 4 lanes wide. The same values either way (Rust never contracts a multiply and an
@@ -249,6 +307,7 @@ pub(super) fn centred_with_stats(x: &Hwc, eps: f32) -> (Hwc, Vec<f64>, Vec<f32>)
     };
     let sum =
         x.d.par_chunks(c * EW_PIXELS)
+            .with_min_len(min_len())
             .map(|blk| {
                 wide(
                     #[inline(always)]
@@ -269,6 +328,7 @@ pub(super) fn centred_with_stats(x: &Hwc, eps: f32) -> (Hwc, Vec<f64>, Vec<f32>)
     let mut d = vec![0.0f32; x.d.len()];
     let var = d
         .par_chunks_mut(c * EW_PIXELS)
+        .with_min_len(min_len())
         .zip(x.d.par_chunks(c * EW_PIXELS))
         .map(|(dst, src)| {
             wide(
@@ -310,6 +370,7 @@ pub(super) fn concat(a: &Hwc, b: &Hwc) -> Hwc {
     let c = a.c + b.c;
     let mut d = vec![0.0f32; a.h * a.w * c];
     d.par_chunks_mut(c * EW_PIXELS)
+        .with_min_len(min_len())
         .zip(
             a.d.par_chunks(a.c * EW_PIXELS)
                 .zip(b.d.par_chunks(b.c * EW_PIXELS)),

@@ -15,7 +15,7 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use super::conv::{Hwc, PackedConv};
+use super::conv::{Hwc, PackedConv, min_len};
 use crate::bf16::to_bf16;
 
 /// Lanes of one AVX-512 register of f32.
@@ -106,6 +106,7 @@ fn run_rows_with<E: Operand>(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range
     let mut out = vec![0.0f32; rows.len() * wo * cout];
     let first = rows.start;
     out.par_chunks_mut(band * wo * cout)
+        .with_min_len(min_len())
         .enumerate()
         .for_each_init(Vec::new, |pad: &mut Vec<E>, (b, dst)| {
             let oy0 = first + b * band;

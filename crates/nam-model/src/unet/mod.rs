@@ -201,8 +201,8 @@ impl UNet {
     /// param map (f32) included, the input not. The larger of two full-resolution stages: the
     /// last BasicBlocks of the decoder (per pixel their input, first HA-Conv output, centred
     /// copy, output and the skip `e1`: ≈ 9·C floats; plus one band of an HA-Conv's fused GEMM
-    /// and inc1b, ≈ 8·C floats for up to [`blocks::HA_BAND_PIXELS`] pixels) or the head (its
-    /// 64 outputs and its input). On top, each rayon thread's conv scratch: its direct band or
+    /// and inc1b per rayon thread, ≈ 8·C floats for up to [`blocks::HA_BAND_PIXELS`] pixels)
+    /// or the head (its 64 outputs and its input). On top, each rayon thread's conv scratch: its direct band or
     /// Winograd piece, or its im2col band. `tests/memory.rs` checks it against a
     /// counting allocator (docs/perf/unet_memory.md).
     pub fn peak_bytes(&self, height: usize, width: usize) -> u64 {
@@ -210,14 +210,17 @@ impl UNet {
         let pixels = hp * wp;
         let (c, i) = (self.width, self.in_channels);
         let head_in = c + if self.input_skip { i } else { 0 };
-        let band = pixels.min(blocks::HA_BAND_PIXELS + 2 * wp);
-        let decoder = pixels * (9 * c + 2 * i) + band * 8 * c;
+        // One band of an HA-Conv per thread at most (`blocks::Ha::run`: its rows and a halo row
+        // either side).
+        let threads = rayon::current_num_threads();
+        let rows = (blocks::HA_BAND_PIXELS / wp).clamp(1, hp.div_ceil(2 * threads).max(1));
+        let bands = threads.min(hp.div_ceil(rows));
+        let decoder = pixels * (9 * c + 2 * i) + bands * ((rows + 2) * wp).min(pixels) * 8 * c;
         let head = pixels * (self.params + head_in + i);
         // Per rayon thread, the conv scratch: the direct path's padded input band (the widest
         // input of a level: the 7×7 head or stem, dec4's 3·C at full size, then 2·C, 4·C and
         // 8·C channels at 1/2, 1/4 and 1/8 of the side), else one im2col band, whose widest row
         // is the 7×7 stem's or head's, or a 3×3 conv's over 12·C channels (dec2).
-        let threads = rayon::current_num_threads();
         let scratch = if direct::available() {
             let direct = [(wp, 7, head_in.max(i)), (wp, 3, 3 * c), (wp / 2, 3, 2 * c)]
                 .into_iter()

@@ -17,7 +17,7 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use super::conv::{Hwc, PackedConv};
+use super::conv::{Hwc, PackedConv, min_len};
 use super::direct::{self, Gemm};
 
 /// Lanes of one AVX-512 register of f32.
@@ -147,6 +147,7 @@ fn transform(wt: &[f32], k: usize, cin: usize, cout: usize) -> Vec<Gemm> {
     let share = POINTS.div_ceil(rayon::current_num_threads());
     gemms
         .par_chunks_mut(share)
+        .with_min_len(min_len())
         .enumerate()
         .for_each(|(c, chunk)| {
             for e in 0..kk {
@@ -186,22 +187,29 @@ unsafe fn axpy(dst: &mut [f32], c: f32, src: &[f32]) {
     }
 }
 
+/// The weights `wt` of `conv` (packed as `conv.wt`) transformed for [`run_rows`]: one GEMM
+/// operand per point, computed once for any number of calls with the same weights.
+pub(super) fn transform_weights(conv: &PackedConv, wt: &[f32]) -> Vec<Gemm> {
+    let (k, cin, cout) = (conv.k, conv.cin, conv.cout);
+    assert_eq!(wt.len(), k * k * cin * cout);
+    transform(wt, k, cin, cout)
+}
+
 /// Output rows `rows` of `conv` (stride 1, odd k×k, replicate padding k/2) applied to `x` with
-/// weights `wt`: the values of [`PackedConv::run_rows`] within `WINOGRAD_TOL`; [`applies`] says
-/// where it is faster.
-pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> Hwc {
+/// the transformed weights `gemms` ([`transform_weights`]): the values of
+/// [`PackedConv::run_rows`] within `WINOGRAD_TOL`; [`applies`] says where it is faster.
+pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, gemms: &[Gemm], rows: Range<usize>) -> Hwc {
     assert!(
         direct::available(),
         "Winograd convolution without AVX-512F/VL"
     );
     let (k, cin, cout) = (conv.k, conv.cin, conv.cout);
     assert!(k % 2 == 1 && conv.stride == 1 && conv.pad == k / 2 && cin <= x.c);
-    assert_eq!(wt.len(), k * k * cin * cout);
+    assert_eq!(gemms.len(), POINTS);
     let (ho, wo) = conv.out_size(x);
     assert!(rows.end <= ho && !rows.is_empty());
     let nb = blocks(k);
     let kk = gemm_rows(k, cin);
-    let gemms = transform(wt, k, cin, cout);
     // Input offset of block (by, bx)'s tile from its output tile, per side.
     let shift = |b: usize| (3 * b) as isize - (conv.pad + lead(k)) as isize;
     let tiles_x = wo.div_ceil(M);
@@ -218,6 +226,7 @@ pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize
     let band = rows_of_tiles * M;
     let mut out = vec![0.0f32; rows.len() * wo * cout];
     out.par_chunks_mut(band * wo * cout)
+        .with_min_len(min_len())
         .enumerate()
         .for_each_init(Scratch::default, |s, (b, dst)| {
             let y0 = rows.start + b * band;
@@ -436,7 +445,7 @@ mod tests {
                     continue;
                 }
                 let want = conv.im2col_rows(&x, &conv.wt, rows.clone());
-                let got = run_rows(&conv, &x, &conv.wt, rows.clone());
+                let got = run_rows(&conv, &x, &transform_weights(&conv, &conv.wt), rows.clone());
                 let worst = worst_rel(&got, &want);
                 assert!(worst < WINOGRAD_TOL, "case {n}, rows {rows:?}: {worst:e}");
             }
