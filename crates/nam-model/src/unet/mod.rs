@@ -246,6 +246,13 @@ impl UNet {
     /// docs/FORMAT.md) and returns the param map (HWC). Any size: the input is
     /// replicate-padded bottom/right to a multiple of 8 and the output cropped.
     pub fn estimate(&self, input: &[f32], height: usize, width: usize) -> Result<ParamMap> {
+        // On one of rayon's threads: from any other thread each parallel loop of the network
+        // (hundreds of them) would be handed to the pool and waited for on its own.
+        rayon::scope(|_| self.estimate_here(input, height, width))
+    }
+
+    /// [`Self::estimate`] on the calling thread's rayon pool.
+    fn estimate_here(&self, input: &[f32], height: usize, width: usize) -> Result<ParamMap> {
         check_image(height, width)?;
         let ci = self.in_channels;
         check_len("network input", ci * height * width, input.len())?;
