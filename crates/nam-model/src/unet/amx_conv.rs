@@ -192,29 +192,35 @@ impl Shape {
     }
 }
 
-/// Output rows `rows` of `conv` applied to `x` with weights `wt` (packed as `conv.wt`), the
-/// values of [`PackedConv::run_rows`] with bf16 products and f32 sums. Only where [`available`].
-pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> Hwc {
+/// The weights `wt` of `conv` (packed as `conv.wt`) as [`run_rows`] reads them, once for any
+/// number of calls (the packing does not depend on the image).
+pub(super) fn pack_weights(conv: &PackedConv, wt: &[f32]) -> Vec<u32> {
+    assert_eq!(wt.len(), conv.k * conv.k * conv.cin * conv.cout);
+    Shape::new(conv, 1).pack(wt, conv.cin)
+}
+
+/// Output rows `rows` of `conv` applied to `x` with weights `w` ([`pack_weights`]), the values
+/// of [`PackedConv::run_rows`] with bf16 products and f32 sums. Only where [`available`].
+pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, w: &[u32], rows: Range<usize>) -> Hwc {
     assert!(available(), "AMX convolution without AMX-BF16");
     #[cfg(target_arch = "x86_64")]
     {
-        run_rows_x86(conv, x, wt, rows)
+        run_rows_x86(conv, x, w, rows)
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        let _ = (conv, x, wt, rows);
+        let _ = (conv, x, w, rows);
         unreachable!("AMX convolution only where available()")
     }
 }
 
 #[cfg(target_arch = "x86_64")]
-fn run_rows_x86(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> Hwc {
+fn run_rows_x86(conv: &PackedConv, x: &Hwc, w: &[u32], rows: Range<usize>) -> Hwc {
     let (k, s, cin, cout) = (conv.k, conv.stride, conv.cin, conv.cout);
-    assert!(cin <= x.c && wt.len() == k * k * cin * cout);
+    assert!(cin <= x.c);
     let (ho, wo) = conv.out_size(x);
     assert!(rows.end <= ho);
     let shape = Shape::new(conv, wo);
-    let w = shape.pack(wt, cin);
     let band = direct::band_rows(x.w, s, rows.len());
     // Not zeroed first: `Shape::band` writes every value.
     let n = rows.len() * wo * cout;
@@ -264,7 +270,7 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, wt: &[f32], rows: Range<usize>) -> H
                 }
             }
             // SAFETY: AMX (`available`, asserted by the caller).
-            unsafe { shape.band(pad, &w, dst, n_rows) };
+            unsafe { shape.band(pad, w, dst, n_rows) };
         });
     // SAFETY: the bands cover the `n` values, and `Shape::band` wrote each of its band's.
     unsafe { out.set_len(n) };
@@ -323,7 +329,7 @@ mod tests {
                 // bf16 products of bf16-rounded operands are exact in f32: the same sums as f32
                 // products of the rounded operands.
                 let want = conv.im2col_rows(&xr, &round(&conv.wt), rows.clone());
-                let got = run_rows(&conv, &x, &conv.wt, rows.clone());
+                let got = run_rows(&conv, &x, &pack_weights(&conv, &conv.wt), rows.clone());
                 let worst = worst_rel(&got, &want);
                 assert!(worst < DIRECT_TOL, "case {n}, rows {rows:?}: {worst:e}");
             }

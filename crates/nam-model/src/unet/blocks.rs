@@ -147,7 +147,9 @@ impl Ha {
                 let threads = rayon::current_num_threads();
                 let band = (self.band_pixels / w).clamp(1, h.div_ceil(2 * threads).max(1));
                 (out, down) = outputs();
-                let main_wt = self.main.prepare(&xc, &wt);
+                let main_wt = self.main.prepare((h, w), &wt);
+                // inc1b reads a band's GEMM output: `band` rows and the halo.
+                let inc1b_wt = self.inc1b.prepare(((band + 2).min(h), w), &self.inc1b.wt);
                 // One band on one thread: the fused GEMM of its rows (and a halo row either
                 // side), inc1b, the mix, while its GEMM output is still in cache.
                 let run_band = |y0: usize, o: &mut [f32], d: Option<&mut [f32]>| {
@@ -155,7 +157,7 @@ impl Ha {
                         let y1 = (y0 + band).min(h);
                         let (a, b) = (y0.saturating_sub(1), (y1 + 1).min(h));
                         let main = self.main.run_prepared(&xc, &main_wt, a..b);
-                        let c1b = self.inc1b.run(&main);
+                        let c1b = self.inc1b.run_prepared(&main, &inc1b_wt, 0..main.h);
                         let rows = (y0 - a) * w..(y1 - a) * w;
                         mix.run(
                             &main.d[rows.start * cols..rows.end * cols],

@@ -46,6 +46,8 @@ pub(super) struct PackedConv {
 
 /// A conv's weights prepared for the kernel that runs it ([`PackedConv::prepare`]).
 pub(super) enum Prepared<'a> {
+    /// bf16 pairs for the AMX tiles.
+    Amx(Vec<u32>),
     /// Transformed for Winograd, one GEMM operand per point.
     Winograd(Vec<direct::Gemm>),
     /// Packed as [`PackedConv::wt`]; each kernel repacks them per call (cheap beside the
@@ -118,20 +120,24 @@ impl PackedConv {
     /// ([`winograd::applies`]), else a direct convolution (faster than im2col at every width
     /// here, 4 outputs included: docs/perf/unet_cpu.md); elsewhere im2col + GEMM.
     pub(super) fn run_rows(&self, x: &Hwc, wt: &[f32], rows: std::ops::Range<usize>) -> Hwc {
-        self.run_prepared(x, &self.prepare(x, wt), rows)
+        self.run_prepared(x, &self.prepare((x.h, x.w), wt), rows)
     }
 
-    /// The weights `wt` as the kernel that runs this conv on `x` reads them, for any number of
-    /// [`Self::run_prepared`] calls on `x`: transformed once for Winograd, else as they are.
-    pub(super) fn prepare<'a>(&self, x: &Hwc, wt: &'a [f32]) -> Prepared<'a> {
-        if winograd::applies(self, x) {
+    /// The weights `wt` as the kernel that runs this conv on inputs of `size` (height, width)
+    /// reads them, for any number of [`Self::run_prepared`] calls: packed once for AMX,
+    /// transformed once for Winograd, else as they are.
+    pub(super) fn prepare<'a>(&self, size: (usize, usize), wt: &'a [f32]) -> Prepared<'a> {
+        if self.bf16 && amx_conv::available() {
+            Prepared::Amx(amx_conv::pack_weights(self, wt))
+        } else if winograd::applies(self, size) {
             Prepared::Winograd(winograd::transform_weights(self, wt))
         } else {
             Prepared::Packed(wt)
         }
     }
 
-    /// [`Self::run_rows`] with weights from [`Self::prepare`] on the same `x`.
+    /// [`Self::run_rows`] with weights from [`Self::prepare`] (for inputs of about `x`'s size:
+    /// the size only chooses the faster kernel).
     pub(super) fn run_prepared(
         &self,
         x: &Hwc,
@@ -139,10 +145,8 @@ impl PackedConv {
         rows: std::ops::Range<usize>,
     ) -> Hwc {
         match *wt {
+            Prepared::Amx(ref w) => amx_conv::run_rows(self, x, w, rows),
             Prepared::Winograd(ref gemms) => winograd::run_rows(self, x, gemms, rows),
-            Prepared::Packed(wt) if self.bf16 && amx_conv::available() => {
-                amx_conv::run_rows(self, x, wt, rows)
-            }
             Prepared::Packed(wt) if direct::available() => {
                 direct::run_rows(self, x, wt, rows, self.bf16)
             }

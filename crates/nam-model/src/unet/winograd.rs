@@ -86,12 +86,12 @@ pub(super) fn scratch_floats(k: usize, cin: usize, cout: usize) -> usize {
     POINTS * band_tiles(kk, cout) * (kk + cout)
 }
 
-/// Whether `conv` on `x` runs here rather than on the direct tiles: a stride-1 f32 conv with an
+/// Whether `conv` on an `h × w` input runs here rather than on the direct tiles: a stride-1 f32 conv with an
 /// odd kernel and "same" padding where the CPU has AVX-512F/VL, with enough output channels that
 /// the products outweigh the transforms, and enough tiles that each transformed weight matrix
 /// serves many of them (thresholds measured per shape of the U-Net: docs/perf/unet_cpu.md).
-pub(super) fn applies(conv: &PackedConv, x: &Hwc) -> bool {
-    let tiles = x.h.div_ceil(M) * x.w.div_ceil(M);
+pub(super) fn applies(conv: &PackedConv, (h, w): (usize, usize)) -> bool {
+    let tiles = h.div_ceil(M) * w.div_ceil(M);
     conv.k % 2 == 1
         && conv.k >= 3
         && conv.stride == 1
