@@ -6,6 +6,8 @@
 //! AMX-BF16 (Xeon Sapphire Rapids and later, where `vdpbf16ps` is slower than
 //! f32) the same products run on the matrix unit ([`crate::amx`]).
 #![allow(unsafe_code)]
+// Elsewhere `bf16_supported()` is false and no layer is built: the kernels are x86-64 code.
+#![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
 use crate::amx;
 #[cfg(target_arch = "x86_64")]

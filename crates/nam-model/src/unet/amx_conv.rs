@@ -15,12 +15,16 @@
 // Elsewhere only `available()` is reachable (false): the kernel is x86-64 code.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
+#[cfg(target_arch = "x86_64")]
 use std::mem::MaybeUninit;
 use std::ops::Range;
 
+#[cfg(target_arch = "x86_64")]
 use rayon::prelude::*;
 
-use super::conv::{Hwc, PackedConv, min_len};
+#[cfg(target_arch = "x86_64")]
+use super::conv::min_len;
+use super::conv::{Hwc, PackedConv};
 use super::direct;
 use crate::amx::{self, K_PAIRS, N_BLOCK, TILE};
 use crate::bf16::to_bf16;
