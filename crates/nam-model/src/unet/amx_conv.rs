@@ -289,7 +289,7 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, w: &[u32], rows: Range<usize>) -> Hw
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::unet::conv::fixtures::{DIRECT_TOL, case, worst_rel};
+    use crate::unet::conv::fixtures::{CASES, DIRECT_TOL, case, round_bf16, worst_rel};
 
     #[test]
     fn amx_conv_matches_im2col_gemm_on_bf16_rounded_operands() {
@@ -297,33 +297,14 @@ mod tests {
             eprintln!("no AMX-BF16: the AMX convolution not tested");
             return;
         }
-        // (k, stride, cin, x.c, cout, h, w): 3×3 and 7×7, stride 1 and 2, odd channel counts,
-        // a view of wider channels, rows narrower than a tile and rows that end in an
-        // overlapping tile, an odd number of tiles, output channels short of a tile or a block.
-        let cases = [
-            (3, 1, 8, 8, 36, 19, 23),
-            (3, 1, 4, 36, 4, 9, 5),
-            (3, 2, 16, 16, 72, 16, 18),
-            (3, 2, 5, 5, 24, 7, 3),
-            (7, 1, 13, 13, 64, 12, 30),
-            (7, 1, 5, 5, 8, 11, 2),
-            (3, 1, 24, 24, 160, 6, 13),
-            (3, 1, 3, 3, 17, 1, 1),
-            (3, 1, 8, 8, 12, 5, 40),
-            (3, 2, 8, 8, 88, 9, 31),
-            (3, 1, 64, 64, 224, 16, 16),
-            (7, 1, 12, 12, 64, 3, 33),
-        ];
-        let round = |v: &[f32]| -> Vec<f32> {
-            v.iter()
-                .map(|&v| f32::from_bits(to_bf16(v) << 16))
-                .collect()
-        };
-        for (n, &(k, s, cin, xc, cout, h, w)) in cases.iter().enumerate() {
+        // The kernel cases, and: rows that end in an overlapping tile, an odd number of tiles,
+        // output channels short of a block.
+        let more = [(3, 1, 64, 64, 224, 16, 16), (7, 1, 12, 12, 64, 3, 33)];
+        for (n, &(k, s, cin, xc, cout, h, w)) in CASES.iter().chain(&more).enumerate() {
             let (conv, x) = case((k, s, cin, xc, cout), (h, w), n);
             let (ho, _) = conv.out_size(&x);
             let xr = Hwc {
-                d: round(&x.d),
+                d: round_bf16(&x.d),
                 ..x.clone()
             };
             for rows in [0..ho, ho / 3..ho, 0..ho.div_ceil(2)] {
@@ -332,7 +313,7 @@ mod tests {
                 }
                 // bf16 products of bf16-rounded operands are exact in f32: the same sums as f32
                 // products of the rounded operands.
-                let want = conv.im2col_rows(&xr, &round(&conv.wt), rows.clone());
+                let want = conv.im2col_rows(&xr, &round_bf16(&conv.wt), rows.clone());
                 let got = run_rows(&conv, &x, &pack_weights(&conv, &conv.wt), rows.clone());
                 let worst = worst_rel(&got, &want);
                 assert!(worst < DIRECT_TOL, "case {n}, rows {rows:?}: {worst:e}");

@@ -473,6 +473,29 @@ pub(super) mod fixtures {
         (conv, Hwc { h, w, c: xc, d })
     }
 
+    /// Kernel test shapes `(k, stride, cin, x.c, cout, h, w)`: 3×3 and 7×7, stride 1 and 2, odd
+    /// channel counts, a view of wider channels, rows narrower than a register tile, every
+    /// column-group shape of the direct tiles.
+    pub(in super::super) const CASES: [(usize, usize, usize, usize, usize, usize, usize); 10] = [
+        (3, 1, 8, 8, 36, 19, 23),
+        (3, 1, 4, 36, 4, 9, 5),
+        (3, 2, 16, 16, 72, 16, 18),
+        (3, 2, 5, 5, 24, 7, 3),
+        (7, 1, 13, 13, 64, 12, 30),
+        (7, 1, 5, 5, 8, 11, 2),
+        (3, 1, 24, 24, 160, 6, 13),
+        (3, 1, 3, 3, 17, 1, 1),
+        (3, 1, 8, 8, 12, 5, 40),
+        (3, 2, 8, 8, 88, 9, 31),
+    ];
+
+    /// `v` rounded to bf16 (as f32): the operands whose bf16 products are exact in f32.
+    pub(in super::super) fn round_bf16(v: &[f32]) -> Vec<f32> {
+        v.iter()
+            .map(|&v| f32::from_bits(crate::bf16::to_bf16(v) << 16))
+            .collect()
+    }
+
     /// Largest `|got − want|` relative to the magnitude of `want` (or 1).
     pub(in super::super) fn worst_rel(got: &Hwc, want: &Hwc) -> f32 {
         assert_eq!((got.h, got.w, got.c), (want.h, want.w, want.c));

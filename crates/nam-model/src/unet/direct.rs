@@ -589,7 +589,7 @@ impl<E: Operand> Tile<'_, E> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::unet::conv::fixtures::{DIRECT_TOL, case, worst_rel};
+    use crate::unet::conv::fixtures::{CASES, DIRECT_TOL, case, round_bf16, worst_rel};
 
     #[test]
     fn column_groups_cover_every_column_in_even_groups() {
@@ -610,21 +610,7 @@ mod tests {
             eprintln!("no AVX-512F/VL: direct convolution not tested");
             return;
         }
-        // (k, stride, cin, x.c, cout, h, w): 3×3 and 7×7, stride 1 and 2, a view of wider
-        // channels, rows narrower than the tile, every column-group shape.
-        let cases = [
-            (3, 1, 8, 8, 36, 19, 23),
-            (3, 1, 4, 36, 4, 9, 5),
-            (3, 2, 16, 16, 72, 16, 18),
-            (3, 2, 5, 5, 24, 7, 3),
-            (7, 1, 13, 13, 64, 12, 30),
-            (7, 1, 5, 5, 8, 11, 2),
-            (3, 1, 24, 24, 160, 6, 13),
-            (3, 1, 3, 3, 17, 1, 1),
-            (3, 1, 8, 8, 12, 5, 40),
-            (3, 2, 8, 8, 88, 9, 31),
-        ];
-        for (n, &(k, s, cin, xc, cout, h, w)) in cases.iter().enumerate() {
+        for (n, &(k, s, cin, xc, cout, h, w)) in CASES.iter().enumerate() {
             let (conv, x) = case((k, s, cin, xc, cout), (h, w), n);
             let (ho, _) = conv.out_size(&x);
             for rows in [0..ho, ho / 3..ho, 0..ho.div_ceil(2)] {
@@ -638,16 +624,11 @@ mod tests {
                 if available_bf16() {
                     // bf16 products of bf16-rounded operands are exact in f32: the same sums
                     // as f32 products of the rounded operands.
-                    let round = |v: &[f32]| -> Vec<f32> {
-                        v.iter()
-                            .map(|&v| f32::from_bits(to_bf16(v) << 16))
-                            .collect()
-                    };
                     let xr = Hwc {
-                        d: round(&x.d),
+                        d: round_bf16(&x.d),
                         ..x.clone()
                     };
-                    let want = conv.im2col_rows(&xr, &round(&conv.wt), rows.clone());
+                    let want = conv.im2col_rows(&xr, &round_bf16(&conv.wt), rows.clone());
                     let got = run_rows(&conv, &x, &conv.wt, rows.clone(), true);
                     let worst = worst_rel(&got, &want);
                     assert!(
