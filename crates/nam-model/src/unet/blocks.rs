@@ -266,9 +266,7 @@ impl Mix {
                 });
         }
     }
-}
 
-impl Mix {
     /// [`Self::run`] for one block of pixels, the first of them pixel `first`: `co` output
     /// channels (`CO` when it is not 0, a constant the loops unroll to).
     #[inline(always)]
