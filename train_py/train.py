@@ -28,6 +28,7 @@ from pathlib import Path
 
 import torch
 import torch.distributed as dist
+import torch.utils.data
 from torch import nn
 
 from . import capture, gen, ggx, materials, protocols
@@ -276,6 +277,26 @@ def draw_batch(
     return {k: v.to(device) for k, v in maps.items()}, net_input.to(device), cap
 
 
+class CaptureStream(torch.utils.data.IterableDataset):
+    """Endless training batches ``(size, maps, net_input, capture)`` drawn by ``draw_batch`` on the
+    CPU, for ``--workers`` DataLoader processes that keep a GPU fed (each worker its own seeded
+    stream: the batches differ from a ``--workers 0`` run's, which draws them in the step loop)."""
+
+    def __init__(self, seed: int, batch: int, sizes: list[int], bank, real_frac: float, phone: bool):
+        super().__init__()
+        self.seed, self.batch, self.sizes = seed, batch, sizes
+        self.bank, self.real_frac, self.phone = bank, real_frac, phone
+
+    def __iter__(self):
+        info = torch.utils.data.get_worker_info()
+        worker = info.id if info is not None else 0
+        g = torch.Generator().manual_seed(self.seed * 1000003 + 104729 * (worker + 1))
+        while True:
+            seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (self.batch,), generator=g).tolist()
+            size = self.sizes[int(torch.randint(0, len(self.sizes), (), generator=g))]
+            yield (size, *draw_batch(seeds, size, "cpu", self.bank, self.real_frac, self.phone))
+
+
 def load_decoder(path: str, into: NamModel | None) -> nn.Module:
     """The map encoder ``E`` (frozen) of a pretrained decoder (``train_py.pretrain`` checkpoint), the
     target of the latent regression; its ``nd_enc`` and ``render`` are copied ``into`` a model."""
@@ -376,6 +397,12 @@ def parse_args(argv=None):
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help="DataLoader processes drawing the batches (0: in the step loop; a GPU run wants ~cores-2)",
+    )
     ap.add_argument("--batch", type=int, default=2, help="materials (input photos) per step")
     ap.add_argument("--outputs", type=int, default=8, help="rendered exemplars per material")
     ap.add_argument("--size", type=int, default=64, help="training resolution (the U-Net is fully convolutional)")
@@ -576,6 +603,17 @@ def train(args) -> dict:
 
     emit(f"# {json.dumps(vars(args))} world={world}")
     sizes = [int(v) for v in args.sizes.split(",") if v.strip()]
+    batches = None
+    if args.workers:
+        stream = CaptureStream(
+            args.seed + 7919 * state["step"], args.batch, sizes or [args.size], bank, args.real_frac, args.phone
+        )
+        loader = torch.utils.data.DataLoader(
+            stream, batch_size=None, num_workers=args.workers, pin_memory=device.type == "cuda", prefetch_factor=4
+        )
+        batches = iter(loader)
+    if device.type == "cuda":
+        torch.backends.cudnn.benchmark = True
     start = time.time() - state["elapsed"]
     cpu_start = time.process_time() - state["cpu"]
     last_ckpt = time.time()
@@ -594,12 +632,17 @@ def train(args) -> dict:
         for group in opt.param_groups:
             group["lr"] = lr * group.get("lr_scale", 1.0)
         t0 = time.time()
-        seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (args.batch,), generator=data_gen).tolist()
-        size, outputs = args.size, args.outputs
-        if sizes:
-            size = sizes[int(torch.randint(0, len(sizes), (), generator=data_gen))]
-            outputs = max(1, round(args.outputs * (args.size / size) ** 2))
-        maps, net_input, cap = draw_batch(seeds, size, device, bank, args.real_frac, args.phone)
+        if batches is not None:
+            size, maps, net_input, cap = next(batches)
+            maps = {k: v.to(device, non_blocking=True) for k, v in maps.items()}
+            net_input = net_input.to(device, non_blocking=True)
+        else:
+            seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (args.batch,), generator=data_gen).tolist()
+            size = args.size
+            if sizes:
+                size = sizes[int(torch.randint(0, len(sizes), (), generator=data_gen))]
+            maps, net_input, cap = draw_batch(seeds, size, device, bank, args.real_frac, args.phone)
+        outputs = max(1, round(args.outputs * (args.size / size) ** 2)) if sizes else args.outputs
         light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)
         light, view = protocols.mix_moved_light(data_gen, light, view, args.moved_frac, cap.camera())
         light, view = protocols.mix_identity(data_gen, light, view, args.identity_frac, (cap.flash(), cap.camera()))
