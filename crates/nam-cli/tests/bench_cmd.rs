@@ -56,17 +56,19 @@ fn bench_prints_one_measured_row_per_path() {
         .partition(|r| r[0].contains(", bf16 (") || r[0].contains(", int8 ("));
     assert!(reduced.len() <= 3, "{stdout}");
     assert_eq!(rows.len(), ROWS.len(), "{stdout}");
-    let mut kinds = vec![];
+    let mut kinds: Vec<String> = vec![];
     if nam_model::bf16_supported() {
-        // The bf16 estimate gives its params' distance from f32's.
-        kinds.push("estimate 32², bf16 (AVX-512 BF16; params within ");
-        kinds.push("general point relight 32², bf16 (");
+        // The bf16 estimate names its kernel (AMX tiles where the CPU has them) and gives its
+        // params' distance from f32's.
+        let kernel = nam_model::bf16_kernel();
+        kinds.push(format!("estimate 32², bf16 ({kernel}; params within "));
+        kinds.push(format!("general point relight 32², bf16 ({kernel})"));
     }
     if nam_model::int8_supported() {
-        kinds.push("general point relight 32², int8 (AVX-512 VNNI)");
+        kinds.push("general point relight 32², int8 (AVX-512 VNNI)".into());
     }
     assert_eq!(reduced.len(), kinds.len(), "{stdout}");
-    let wanted = ROWS.iter().copied().chain(kinds);
+    let wanted = ROWS.iter().copied().chain(kinds.iter().map(String::as_str));
     for (row, want) in rows.iter().chain(&reduced).zip(wanted) {
         assert_eq!(row.len(), 6, "{row:?}");
         assert!(row[0].starts_with(want), "{} vs {want}", row[0]);
