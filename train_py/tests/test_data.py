@@ -8,7 +8,7 @@ import sys
 import torch
 
 from train_py import capture, gen, ggx, materials
-from train_py.train import draw_batch, make_batch
+from train_py.train import CaptureStream, draw_batch, make_batch
 
 from .conftest import REPO
 
@@ -109,11 +109,30 @@ def test_draw_batch_mixes_real_and_procedural_materials():
     torch.testing.assert_close(plain_input, want_input)
 
 
+def test_capture_stream_draws_seeded_batches_per_worker_at_the_given_sizes():
+    bank = materials.MaterialBank("train", side=64)
+    stream = CaptureStream(5, 3, [16, 24], bank, 0.5, True)
+    first = [b for b, _ in zip(stream, range(6), strict=False)]
+    again = [b for b, _ in zip(stream, range(6), strict=False)]
+    assert {b[0] for b in first} == {16, 24}
+    for (size, maps, net_input, cap), (size2, _, net_input2, cap2) in zip(first, again, strict=True):
+        assert net_input.shape == (3, 4, size, size) and maps["normal"].shape == (3, size, size, 3)
+        assert size == size2 and cap == cap2
+        torch.testing.assert_close(net_input, net_input2)
+    # Two DataLoader workers draw different streams (each its own seed), both at the given sizes.
+    loader = torch.utils.data.DataLoader(stream, batch_size=None, num_workers=2)
+    batches = [b for b, _ in zip(loader, range(4), strict=False)]
+    assert all(b[0] in (16, 24) for b in batches)
+    assert not torch.equal(batches[0][1]["diffuse"], batches[1][1]["diffuse"])
+
+
 def test_train_gpu_script_runs_end_to_end_on_the_cpu(tmp_path):
     # scripts/train-gpu is run on a CUDA machine without ../shared: it must work from a pack.
     materials.pack(tmp_path / "pack", 32)
     env = dict(os.environ, NAM_MATERIALS=str(tmp_path / "pack"), OUT=str(tmp_path / "out"), PYTHON=sys.executable)
-    cmd = [str(REPO / "scripts" / "train-gpu"), "--device", "cpu", "--minutes", "0.05", "--batch", "2", "--quick-eval"]
+    # One DataLoader worker, as a GPU run draws its batches (scripts/train-gpu: cores - 2 on CUDA).
+    cmd = [str(REPO / "scripts" / "train-gpu"), "--device", "cpu", "--minutes", "0.05", "--batch", "2"]
+    cmd += ["--workers", "1", "--quick-eval"]
     done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr[-2000:]
     out = tmp_path / "out"
