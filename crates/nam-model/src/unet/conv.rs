@@ -2,6 +2,8 @@
 //! as GEMM operands (im2col over bands of output rows), InstanceNorm statistics, concatenation
 //! and the vectorisable `exp`/sigmoid of the element-wise passes.
 
+use std::mem::MaybeUninit;
+
 use rayon::prelude::*;
 
 use super::{amx_conv, direct, winograd};
@@ -315,22 +317,15 @@ pub(super) fn centred_with_stats(x: &Hwc, eps: f32) -> (Hwc, Vec<f64>, Vec<f32>)
             .map(|blk| {
                 wide(
                     #[inline(always)]
-                    || {
-                        let mut acc = vec![0.0f64; c];
-                        for px in blk.chunks_exact(c) {
-                            acc.iter_mut()
-                                .zip(px)
-                                .for_each(|(a, &v)| *a += f64::from(v));
-                        }
-                        acc
-                    },
+                    || block_sums(Group::of(c), blk, c),
                 )
             })
             .reduce(|| vec![0.0; c], add);
     let mean: Vec<f64> = sum.iter().map(|s| s / n).collect();
     let mean32: Vec<f32> = mean.iter().map(|&m| m as f32).collect();
-    let mut d = vec![0.0f32; x.d.len()];
-    let var = d
+    // Not zeroed first: `block_centre` writes every value.
+    let mut d: Vec<f32> = Vec::with_capacity(x.d.len());
+    let var = d.spare_capacity_mut()[..x.d.len()]
         .par_chunks_mut(c * EW_PIXELS)
         .with_min_len(min_len())
         .zip(x.d.par_chunks(c * EW_PIXELS))
@@ -339,22 +334,114 @@ pub(super) fn centred_with_stats(x: &Hwc, eps: f32) -> (Hwc, Vec<f64>, Vec<f32>)
                 #[inline(always)]
                 || {
                     let mut acc = vec![0.0f64; c];
-                    for (o, px) in dst.chunks_exact_mut(c).zip(src.chunks_exact(c)) {
-                        for (ch, (o, &v)) in o.iter_mut().zip(px).enumerate() {
-                            *o = v - mean32[ch];
-                            acc[ch] += (f64::from(v) - mean[ch]).powi(2);
-                        }
-                    }
+                    block_centre(Group::of(c), src, dst, (&mean32, &mean), &mut acc);
                     acc
                 },
             )
         })
         .reduce(|| vec![0.0; c], add);
+    // SAFETY: the blocks cover the values, and `block_centre` wrote each of its block's.
+    #[allow(unsafe_code)]
+    unsafe {
+        d.set_len(x.d.len())
+    };
     let inv = var
         .iter()
         .map(|q| (1.0 / (q / n + f64::from(eps)).sqrt()) as f32)
         .collect();
     (Hwc { d, ..*x }, mean, inv)
+}
+
+/// Channels summed together in registers by [`block_sums`] and [`block_centre`]: 8, 4 or 2
+/// where `c` is a multiple, else 1.
+#[derive(Clone, Copy)]
+enum Group {
+    Of8,
+    Of4,
+    Of2,
+    Of1,
+}
+
+impl Group {
+    /// The widest group that divides `c`.
+    fn of(c: usize) -> Self {
+        match c {
+            _ if c.is_multiple_of(8) => Self::Of8,
+            _ if c.is_multiple_of(4) => Self::Of4,
+            _ if c.is_multiple_of(2) => Self::Of2,
+            _ => Self::Of1,
+        }
+    }
+}
+
+/// Per channel, the f64 sum over the pixels of `blk` (`c` channels each), in pixel order.
+#[inline(always)]
+fn block_sums(g: Group, blk: &[f32], c: usize) -> Vec<f64> {
+    #[inline(always)]
+    fn run<const G: usize>(blk: &[f32], c: usize) -> Vec<f64> {
+        let mut out = vec![0.0f64; c];
+        for g0 in (0..c).step_by(G) {
+            // One group's sums stay in registers across the pixels.
+            let mut acc = [0.0f64; G];
+            for px in blk.chunks_exact(c) {
+                for (a, &v) in acc.iter_mut().zip(&px[g0..g0 + G]) {
+                    *a += f64::from(v);
+                }
+            }
+            out[g0..g0 + G].copy_from_slice(&acc);
+        }
+        out
+    }
+    match g {
+        Group::Of8 => run::<8>(blk, c),
+        Group::Of4 => run::<4>(blk, c),
+        Group::Of2 => run::<2>(blk, c),
+        Group::Of1 => run::<1>(blk, c),
+    }
+}
+
+/// Writes `src − μ` (`mean`: μ as f32 and f64) into `dst` and adds each channel's
+/// `Σ (src − μ)²` (f64, in pixel order) to `acc`.
+#[inline(always)]
+fn block_centre(
+    g: Group,
+    src: &[f32],
+    dst: &mut [MaybeUninit<f32>],
+    mean: (&[f32], &[f64]),
+    acc: &mut [f64],
+) {
+    #[inline(always)]
+    fn run<const G: usize>(
+        src: &[f32],
+        dst: &mut [MaybeUninit<f32>],
+        (mean32, mean): (&[f32], &[f64]),
+        out: &mut [f64],
+    ) {
+        let c = out.len();
+        for g0 in (0..c).step_by(G) {
+            let r = g0..g0 + G;
+            let m32: [f32; G] = mean32[r.clone()].try_into().expect("G means");
+            let m: [f64; G] = mean[r.clone()].try_into().expect("G means");
+            let mut acc = [0.0f64; G];
+            for (o, px) in dst.chunks_exact_mut(c).zip(src.chunks_exact(c)) {
+                // Whole groups as arrays, so the loop runs in vector registers.
+                let v: [f32; G] = px[r.clone()].try_into().expect("G values");
+                let o: &mut [MaybeUninit<f32>; G] =
+                    (&mut o[r.clone()]).try_into().expect("G values");
+                *o = std::array::from_fn(|j| MaybeUninit::new(v[j] - m32[j]));
+                for j in 0..G {
+                    acc[j] += (f64::from(v[j]) - m[j]).powi(2);
+                }
+            }
+            out[r].copy_from_slice(&acc);
+        }
+    }
+    match g {
+        Group::Of8 => run::<8>(src, dst, mean, acc),
+        Group::Of4 => run::<4>(src, dst, mean, acc),
+        Group::Of2 => run::<2>(src, dst, mean, acc),
+        Group::Of1 => run::<1>(src, dst, mean, acc),
+    }
 }
 
 /// Per output column of a packed conv, its response to the constant image
