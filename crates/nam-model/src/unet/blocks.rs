@@ -2,6 +2,8 @@
 //! the BasicBlock (two HA-Convs, BatchNorm, residual) and the ReverseBlock (transposed convs
 //! split into output-parity sub-convolutions).
 
+use std::mem::MaybeUninit;
+
 use nam_weights::Scope;
 use rayon::prelude::*;
 
@@ -102,9 +104,13 @@ impl Ha {
         let f32s = |v: &[f64]| -> Vec<f32> { v.iter().map(|&b| b as f32).collect() };
         let (h, w) = self.main.out_size(x);
         // At stride 2 allocated once the centred copy is gone, so the two are not held together.
+        // Not zeroed: the mix writes every value (`Mix::run`).
+        let n = h * w * co;
         let outputs = || {
-            let d = self.has_down.then(|| vec![0.0f32; h * w * co]);
-            (vec![0.0f32; h * w * co], d)
+            (
+                Vec::with_capacity(n),
+                self.has_down.then(|| Vec::with_capacity(n)),
+            )
         };
         let (mut out, mut down): (Vec<f32>, Option<Vec<f32>>);
         let mix = Mix {
@@ -128,8 +134,8 @@ impl Ha {
                     &c1b.d,
                     &c1b_bias,
                     0,
-                    &mut out,
-                    down.as_deref_mut(),
+                    &mut out.spare_capacity_mut()[..n],
+                    down.as_mut().map(|d| &mut d.spare_capacity_mut()[..n]),
                     &post,
                 );
             }
@@ -152,39 +158,48 @@ impl Ha {
                 let inc1b_wt = self.inc1b.prepare(((band + 2).min(h), w), &self.inc1b.wt);
                 // One band on one thread: the fused GEMM of its rows (and a halo row either
                 // side), inc1b, the mix, while its GEMM output is still in cache.
-                let run_band = |y0: usize, o: &mut [f32], d: Option<&mut [f32]>| {
-                    on_this_thread(|| {
-                        let y1 = (y0 + band).min(h);
-                        let (a, b) = (y0.saturating_sub(1), (y1 + 1).min(h));
-                        let main = self.main.run_prepared(&xc, &main_wt, a..b);
-                        let c1b = self.inc1b.run_prepared(&main, &inc1b_wt, 0..main.h);
-                        let rows = (y0 - a) * w..(y1 - a) * w;
-                        mix.run(
-                            &main.d[rows.start * cols..rows.end * cols],
-                            &c1b.d[rows.start * half..rows.end * half],
-                            &c1b_bias,
-                            y0 * w,
-                            o,
-                            d,
-                            &post,
-                        );
-                    })
-                };
+                let run_band =
+                    |y0: usize, o: &mut [MaybeUninit<f32>], d: Option<&mut [MaybeUninit<f32>]>| {
+                        on_this_thread(|| {
+                            let y1 = (y0 + band).min(h);
+                            let (a, b) = (y0.saturating_sub(1), (y1 + 1).min(h));
+                            let main = self.main.run_prepared(&xc, &main_wt, a..b);
+                            let c1b = self.inc1b.run_prepared(&main, &inc1b_wt, 0..main.h);
+                            let rows = (y0 - a) * w..(y1 - a) * w;
+                            mix.run(
+                                &main.d[rows.start * cols..rows.end * cols],
+                                &c1b.d[rows.start * half..rows.end * half],
+                                &c1b_bias,
+                                y0 * w,
+                                o,
+                                d,
+                                &post,
+                            );
+                        })
+                    };
                 let chunk = band * w * co;
-                match down.as_deref_mut() {
-                    Some(d) => out
+                let o = &mut out.spare_capacity_mut()[..n];
+                match down.as_mut().map(|d| &mut d.spare_capacity_mut()[..n]) {
+                    Some(d) => o
                         .par_chunks_mut(chunk)
                         .zip(d.par_chunks_mut(chunk))
                         .enumerate()
                         .for_each(|(i, (o, d))| run_band(i * band, o, Some(d))),
-                    None => out
+                    None => o
                         .par_chunks_mut(chunk)
                         .enumerate()
                         .for_each(|(i, o)| run_band(i * band, o, None)),
                 }
             }
         }
-        let hwc = |d| Hwc { h, w, c: co, d };
+        let hwc = |mut d: Vec<f32>| {
+            // SAFETY: `Mix::run` wrote each of the `n` values (its output and `down`).
+            #[allow(unsafe_code)]
+            unsafe {
+                d.set_len(n)
+            };
+            Hwc { h, w, c: co, d }
+        };
         (hwc(out), down.map(hwc))
     }
 }
@@ -218,8 +233,8 @@ impl Mix {
         c1b: &[f32],
         c1b_bias: &[f32],
         first: usize,
-        out: &mut [f32],
-        down: Option<&mut [f32]>,
+        out: &mut [MaybeUninit<f32>],
+        down: Option<&mut [MaybeUninit<f32>]>,
         post: &(impl Fn(usize, &mut [f32]) + Sync),
     ) {
         let (co, cols, off) = (self.co, self.cols, self.off);
@@ -258,7 +273,7 @@ impl Mix {
                         || {
                             for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
                                 for ((o, &v), &b) in o.iter_mut().zip(&m[s..s + co]).zip(b) {
-                                    *o = v + b;
+                                    o.write(v + b);
                                 }
                             }
                         },
@@ -275,7 +290,7 @@ impl Mix {
         &self,
         co: usize,
         first: usize,
-        o: &mut [f32],
+        o: &mut [MaybeUninit<f32>],
         m: &[f32],
         c1: &[f32],
         c1b_bias: &[f32],
@@ -288,11 +303,16 @@ impl Mix {
         let (gate_b, inc2_b) = self.bias[off..feat0].split_at(co);
         // gate + bias, then the sigmoid over the whole contiguous block
         // (a flat loop vectorises; a per-pixel one over `co` does not).
+        assert_eq!(o.len() / co, m.len() / cols, "one GEMM row per output pixel");
         for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
             for ((o, &g), &b) in o.iter_mut().zip(&m[off..off + co]).zip(gate_b) {
-                *o = g + b;
+                o.write(g + b);
             }
         }
+        // SAFETY: the loop above wrote every value of `o` (whole pixels: `o` and `m` hold
+        // the same number).
+        #[allow(unsafe_code)]
+        let o = unsafe { &mut *(std::ptr::from_mut(o) as *mut [f32]) };
         o.iter_mut().for_each(|v| *v = sigmoid(*v));
         let px = o
             .chunks_exact_mut(co)
@@ -498,24 +518,26 @@ impl Reverse {
                     || (Vec::new(), Vec::new()),
                     |(col, pairs): &mut (Vec<f32>, Vec<u32>), (band, dst)| {
                         let m = dst.len() / co;
-                        col.clear();
+                        // Not zeroed first: every tap is written below, the ones outside the
+                        // image as zeros.
                         col.resize(m * kk, 0.0);
                         let p0 = band * rows * w;
                         for p in 0..m {
                             let (iy, ix) = ((p0 + p) / w, (p0 + p) % w);
                             for ty in 0..2 {
                                 let sy = iy as isize + UP4_TAPS[py][ty].0;
-                                if sy < 0 || sy >= h as isize {
-                                    continue;
-                                }
                                 for tx in 0..2 {
                                     let sx = ix as isize + UP4_TAPS[px][tx].0;
-                                    if sx < 0 || sx >= w as isize {
-                                        continue;
-                                    }
-                                    let src = (sy as usize * w + sx as usize) * ci;
                                     let t = p * kk + (ty * 2 + tx) * ci;
-                                    col[t..t + ci].copy_from_slice(&x.d[src..src + ci]);
+                                    let tap = &mut col[t..t + ci];
+                                    if (0..h as isize).contains(&sy)
+                                        && (0..w as isize).contains(&sx)
+                                    {
+                                        let src = (sy as usize * w + sx as usize) * ci;
+                                        tap.copy_from_slice(&x.d[src..src + ci]);
+                                    } else {
+                                        tap.fill(0.0);
+                                    }
                                 }
                             }
                         }
@@ -687,16 +709,20 @@ mod tests {
         let post =
             |p: usize, px: &mut [f32]| px.iter_mut().for_each(|v| *v = (*v + p as f32).max(0.0));
         let run = |constant: bool| {
-            let mut o = vec![0.0f32; n * co];
+            let mut o = vec![MaybeUninit::new(f32::NAN); n * co];
             if constant {
                 mix.pixels::<16>(co, 5, &mut o, &m, &c1, &c1b_bias, &post);
             } else {
                 mix.pixels::<0>(co, 5, &mut o, &m, &c1, &c1b_bias, &post);
             }
-            o
+            // SAFETY: initialised (NaN, then the mix's values).
+            #[allow(unsafe_code)]
+            o.into_iter()
+                .map(|v| unsafe { v.assume_init() })
+                .collect::<Vec<f32>>()
         };
         let (a, b) = (run(true), run(false));
-        assert!(a.iter().any(|&v| v > 0.0));
+        assert!(a.iter().any(|&v| v > 0.0) && a.iter().all(|v| v.is_finite()));
         assert_eq!(a, b);
     }
 }
