@@ -303,7 +303,11 @@ impl Mix {
         let (gate_b, inc2_b) = self.bias[off..feat0].split_at(co);
         // gate + bias, then the sigmoid over the whole contiguous block
         // (a flat loop vectorises; a per-pixel one over `co` does not).
-        assert_eq!(o.len() / co, m.len() / cols, "one GEMM row per output pixel");
+        assert_eq!(
+            o.len() / co,
+            m.len() / cols,
+            "one GEMM row per output pixel"
+        );
         for (o, m) in o.chunks_exact_mut(co).zip(m.chunks_exact(cols)) {
             for ((o, &g), &b) in o.iter_mut().zip(&m[off..off + co]).zip(gate_b) {
                 o.write(g + b);
@@ -381,11 +385,19 @@ impl Basic {
 
     pub(super) fn run(&self, x: &Hwc, eps: f32, slope: f32) -> Hwc {
         let (s1, t1) = &self.bn1;
-        let (y, down) = self.ha1.run(x, eps, slope, |_, px| {
-            for ((v, s), t) in px.iter_mut().zip(s1).zip(t1) {
-                *v = (*v * s + t).max(0.0);
-            }
-        });
+        // The post closures are inlined into the mix, which runs compiled for AVX-512 where
+        // the CPU has it (`conv::wide`).
+        let (y, down) = self.ha1.run(
+            x,
+            eps,
+            slope,
+            #[inline(always)]
+            |_, px| {
+                for ((v, s), t) in px.iter_mut().zip(s1).zip(t1) {
+                    *v = (*v * s + t).max(0.0);
+                }
+            },
+        );
         let co = y.c;
         let (s2, t2) = &self.bn2;
         // Identity branch: the fused 1×1 `down` conv plus its bias, or x itself.
@@ -394,12 +406,19 @@ impl Basic {
             (Some(d), Some(b)) => (&d.d, b),
             _ => (&x.d, &zero),
         };
-        let (y, _) = self.ha2.run(&y, eps, slope, |p, px| {
-            let id = &id[p * co..(p + 1) * co];
-            for (k, v) in px.iter_mut().enumerate() {
-                *v = (*v * s2[k] + t2[k] + id[k] + bias[k]).max(0.0);
-            }
-        });
+        let (y, _) = self.ha2.run(
+            &y,
+            eps,
+            slope,
+            #[inline(always)]
+            |p, px| {
+                let id = &id[p * co..(p + 1) * co];
+                let terms = s2.iter().zip(t2).zip(id).zip(bias);
+                for (v, (((s, t), i), b)) in px.iter_mut().zip(terms) {
+                    *v = (*v * s + t + i + b).max(0.0);
+                }
+            },
+        );
         y
     }
 }
@@ -623,12 +642,12 @@ impl Reverse {
                     #[inline(always)]
                     || {
                         let (iy, py) = (oy / 2, oy % 2);
-                        for ox in 0..wo {
+                        for (ox, o) in row.chunks_exact_mut(co).enumerate() {
                             let (ix, px) = (ox / 2, ox % 2);
                             let src = ((iy * w + ix) * 4 + py * 2 + px) * co;
-                            for k in 0..co {
-                                let v = &mut row[ox * co + k];
-                                *v = (*v + self.conv_b[k] + u[src + k] + self.up2_b[k]).max(0.0);
+                            let terms = self.conv_b.iter().zip(&u[src..src + co]).zip(&self.up2_b);
+                            for (v, ((c, u), b)) in o.iter_mut().zip(terms) {
+                                *v = (*v + c + u + b).max(0.0);
                             }
                         }
                     },
