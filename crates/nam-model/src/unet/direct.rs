@@ -49,9 +49,16 @@ pub(super) fn available_bf16() -> bool {
 
 /// Output rows per band (per rayon task) for `rows` output rows of a stride-`s` conv over an
 /// input `w_in` wide: about [`BAND_PIXELS`] input pixels, and at least four bands per thread
-/// where there are enough rows.
+/// where there are enough rows — unless the conv runs on this thread alone
+/// ([`super::conv::on_this_thread`]): then more bands would only convert more halo rows.
 pub(super) fn band_rows(w_in: usize, s: usize, rows: usize) -> usize {
-    (BAND_PIXELS / (w_in * s)).clamp(1, rows.div_ceil(4 * rayon::current_num_threads()).max(1))
+    let most = (BAND_PIXELS / (w_in * s)).max(1);
+    let per_thread = if super::conv::min_len() == usize::MAX {
+        rows
+    } else {
+        rows.div_ceil(4 * rayon::current_num_threads())
+    };
+    most.clamp(1, per_thread.max(1))
 }
 
 /// Floats of one thread's padded input band, at most, for a k×k conv over an input `w_in` wide
