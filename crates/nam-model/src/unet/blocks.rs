@@ -238,6 +238,12 @@ impl Mix {
         post: &(impl Fn(usize, &mut [f32]) + Sync),
     ) {
         let (co, cols, off) = (self.co, self.cols, self.off);
+        // Every output pixel has its GEMM row: the chunks below pair up and write every value.
+        assert_eq!(
+            out.len() / co,
+            main.len() / cols,
+            "one GEMM row per output pixel"
+        );
         let half = co / 2;
         let feat0 = off + co + half;
         const P: usize = EW_PIXELS;
