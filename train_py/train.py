@@ -277,14 +277,22 @@ def draw_batch(
     return {k: v.to(device) for k, v in maps.items()}, net_input.to(device), cap
 
 
+def draw_seeds_and_size(g: torch.Generator, batch: int, sizes: list[int], size: int) -> tuple[list[int], int]:
+    """A step's material seeds and its crop size: one of ``sizes`` (drawn), else ``size``."""
+    seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (batch,), generator=g).tolist()
+    if sizes:
+        size = sizes[int(torch.randint(0, len(sizes), (), generator=g))]
+    return seeds, size
+
+
 class CaptureStream(torch.utils.data.IterableDataset):
     """Endless training batches ``(size, maps, net_input, capture)`` drawn by ``draw_batch`` on the
     CPU, for ``--workers`` DataLoader processes that keep a GPU fed (each worker its own seeded
     stream: the batches differ from a ``--workers 0`` run's, which draws them in the step loop)."""
 
-    def __init__(self, seed: int, batch: int, sizes: list[int], bank, real_frac: float, phone: bool):
+    def __init__(self, seed: int, batch: int, sizes: list[int], size: int, bank, real_frac: float, phone: bool):
         super().__init__()
-        self.seed, self.batch, self.sizes = seed, batch, sizes
+        self.seed, self.batch, self.sizes, self.size = seed, batch, sizes, size
         self.bank, self.real_frac, self.phone = bank, real_frac, phone
 
     def __iter__(self):
@@ -292,8 +300,7 @@ class CaptureStream(torch.utils.data.IterableDataset):
         worker = info.id if info is not None else 0
         g = torch.Generator().manual_seed(self.seed * 1000003 + 104729 * (worker + 1))
         while True:
-            seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (self.batch,), generator=g).tolist()
-            size = self.sizes[int(torch.randint(0, len(self.sizes), (), generator=g))]
+            seeds, size = draw_seeds_and_size(g, self.batch, self.sizes, self.size)
             yield (size, *draw_batch(seeds, size, "cpu", self.bank, self.real_frac, self.phone))
 
 
@@ -606,7 +613,7 @@ def train(args) -> dict:
     batches = None
     if args.workers:
         stream = CaptureStream(
-            args.seed + 7919 * state["step"], args.batch, sizes or [args.size], bank, args.real_frac, args.phone
+            args.seed + 7919 * state["step"], args.batch, sizes, args.size, bank, args.real_frac, args.phone
         )
         loader = torch.utils.data.DataLoader(
             stream, batch_size=None, num_workers=args.workers, pin_memory=device.type == "cuda", prefetch_factor=4
@@ -637,10 +644,7 @@ def train(args) -> dict:
             maps = {k: v.to(device, non_blocking=True) for k, v in maps.items()}
             net_input = net_input.to(device, non_blocking=True)
         else:
-            seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (args.batch,), generator=data_gen).tolist()
-            size = args.size
-            if sizes:
-                size = sizes[int(torch.randint(0, len(sizes), (), generator=data_gen))]
+            seeds, size = draw_seeds_and_size(data_gen, args.batch, sizes, args.size)
             maps, net_input, cap = draw_batch(seeds, size, device, bank, args.real_frac, args.phone)
         outputs = max(1, round(args.outputs * (args.size / size) ** 2)) if sizes else args.outputs
         light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)

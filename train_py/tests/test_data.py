@@ -111,7 +111,7 @@ def test_draw_batch_mixes_real_and_procedural_materials():
 
 def test_capture_stream_draws_seeded_batches_per_worker_at_the_given_sizes():
     bank = materials.MaterialBank("train", side=64)
-    stream = CaptureStream(5, 3, [16, 24], bank, 0.5, True)
+    stream = CaptureStream(5, 3, [16, 24], 16, bank, 0.5, True)
     first = [b for b, _ in zip(stream, range(6), strict=False)]
     again = [b for b, _ in zip(stream, range(6), strict=False)]
     assert {b[0] for b in first} == {16, 24}

@@ -259,7 +259,12 @@ std::thread_local! {
 /// The `with_min_len` of every parallel loop of the U-Net: 1 (rayon splits as it likes), or
 /// inside [`on_this_thread`] all of the loop (one job, on the calling thread).
 pub(super) fn min_len() -> usize {
-    if ON_THIS_THREAD.get() { usize::MAX } else { 1 }
+    if alone() { usize::MAX } else { 1 }
+}
+
+/// True inside [`on_this_thread`]: the U-Net's parallel loops run on the calling thread alone.
+pub(super) fn alone() -> bool {
+    ON_THIS_THREAD.get()
 }
 
 /// Runs `f` with the U-Net's parallel loops on the calling thread: for work that is already one

@@ -53,7 +53,7 @@ pub(super) fn available_bf16() -> bool {
 /// ([`super::conv::on_this_thread`]): then more bands would only convert more halo rows.
 pub(super) fn band_rows(w_in: usize, s: usize, rows: usize) -> usize {
     let most = (BAND_PIXELS / (w_in * s)).max(1);
-    let per_thread = if super::conv::min_len() == usize::MAX {
+    let per_thread = if super::conv::alone() {
         rows
     } else {
         rows.div_ceil(4 * rayon::current_num_threads())
