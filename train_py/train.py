@@ -150,7 +150,7 @@ def select_pixels(params: torch.Tensor, k: int, frac: float, generator: torch.Ge
 def select_shared_pixels(b: int, hw: int, k: int, frac: float, generator: torch.Generator | None, device):
     """Pixel indices ``[B, K, n]``, uniform without replacement, the same for every material."""
     n = max(1, round(frac * hw))
-    idx = torch.rand(k, hw, generator=generator).argsort(dim=1)[:, :n].to(device)
+    idx = torch.rand(k, hw, generator=generator).argsort(dim=1)[:, :n].to(device, non_blocking=True)
     return idx.unsqueeze(0).expand(b, k, n)
 
 
@@ -624,8 +624,13 @@ def train(args) -> dict:
     start = time.time() - state["elapsed"]
     cpu_start = time.process_time() - state["cpu"]
     last_ckpt = time.time()
-    ema = state["loss"]
+    #: Running mean of the loss, kept on the device: reading it back every step would make the
+    #: host wait for the GPU instead of queueing the next step (read at log and checkpoint steps).
+    ema = None if state["loss"] is None else torch.tensor(state["loss"], device=device)
     step = state["step"]
+    #: Wall-clock time, step and time spent waiting for batches since the last log line (its
+    #: s/step is the mean over those steps; only the log line reads the loss back from the GPU).
+    log_t, log_step, data_s = time.time(), step, 0.0
     while True:
         elapsed = time.time() - start
         progress = step / args.steps
@@ -646,6 +651,7 @@ def train(args) -> dict:
         else:
             seeds, size = draw_seeds_and_size(data_gen, args.batch, sizes, args.size)
             maps, net_input, cap = draw_batch(seeds, size, device, bank, args.real_frac, args.phone)
+        data_s += time.time() - t0
         outputs = max(1, round(args.outputs * (args.size / size) ** 2)) if sizes else args.outputs
         light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)
         light, view = protocols.mix_moved_light(data_gen, light, view, args.moved_frac, cap.camera())
@@ -655,7 +661,13 @@ def train(args) -> dict:
             freeze_batchnorm(model)
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.bf16):
             pred, target = step_module(
-                net_input, outputs, args.pixel_frac, data_gen, maps, light.to(device), view.to(device)
+                net_input,
+                outputs,
+                args.pixel_frac,
+                data_gen,
+                maps,
+                light.to(device, non_blocking=True),
+                view.to(device, non_blocking=True),
             )
         weights = None
         if args.highlight_weight:
@@ -680,28 +692,30 @@ def train(args) -> dict:
         loss.backward()
         opt.step()
         step += 1
-        val = float(loss.detach())
-        ema = val if ema is None else 0.98 * ema + 0.02 * val
+        ema = loss.detach() if ema is None else 0.98 * ema + 0.02 * loss.detach()
         if step % args.log_every == 0 or step == 1:
             emit(
-                f"step {step:6d}  loss {val:.4f}  ema {ema:.4f}  lr {lr:.2e}  "
-                f"{time.time() - t0:.2f} s/step  {elapsed / 60:.1f} min"
-                + (f"  maps {float(maps_err.detach()):.4f}" if maps_err is not None else "")
+                f"step {step:6d}  loss {float(loss):.4f}  ema {float(ema):.4f}  lr {lr:.2e}  "
+                f"{(time.time() - log_t) / (step - log_step):.2f} s/step (data {data_s / (step - log_step):.2f})  "
+                f"{elapsed / 60:.1f} min" + (f"  maps {float(maps_err.detach()):.4f}" if maps_err is not None else "")
             )
-        state.update(step=step, elapsed=time.time() - start, cpu=time.process_time() - cpu_start, loss=ema)
+            log_t, log_step, data_s = time.time(), step, 0.0
+        state.update(step=step, elapsed=time.time() - start, cpu=time.process_time() - cpu_start)
         if args.val_every and step % args.val_every == 0 and rank == 0:
             res = validate(model, args)
             state["history"].append({"step": step, **res})
             emit(f"val   {step:6d}  " + "  ".join(f"{k} {v:.4f}" for k, v in res.items()))
         if rank == 0 and time.time() - last_ckpt > 60 * args.ckpt_minutes:
+            state["loss"] = float(ema)
             save_checkpoint(ckpt_path, model, opt, state, probe)
             last_ckpt = time.time()
     if rank == 0:
         state["minutes"] = state["elapsed"] / 60
+        state["loss"] = None if ema is None else float(ema)
         save_checkpoint(ckpt_path, model, opt, state, probe)
         emit(
             f"done: {step} steps, {state['elapsed'] / 60:.1f} min ({state['cpu'] / 60:.1f} CPU-min), "
-            f"ema loss {ema:.4f}; wrote {ckpt_path}"
+            f"ema loss {state['loss']:.4f}; wrote {ckpt_path}"
         )
         log.close()
     if distributed:
