@@ -695,7 +695,7 @@ def train(args) -> dict:
         ema = loss.detach() if ema is None else 0.98 * ema + 0.02 * loss.detach()
         if step % args.log_every == 0 or step == 1:
             emit(
-                f"step {step:6d}  loss {float(loss):.4f}  ema {float(ema):.4f}  lr {lr:.2e}  "
+                f"step {step:6d}  loss {float(loss.detach()):.4f}  ema {float(ema):.4f}  lr {lr:.2e}  "
                 f"{(time.time() - log_t) / (step - log_step):.2f} s/step (data {data_s / (step - log_step):.2f})  "
                 f"{elapsed / 60:.1f} min" + (f"  maps {float(maps_err.detach()):.4f}" if maps_err is not None else "")
             )

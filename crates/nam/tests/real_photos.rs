@@ -30,8 +30,12 @@ const LOG_EPS: f32 = 0.01;
 /// log-L1, mean over channels and compared pixels; predicting black gives ≈ 1.5–4).
 const IDENTITY_LOG_L1_MAX: f64 = 0.8;
 /// Any plausible relight gets brighter on the side the light moves to: the right-over-left ratio
-/// grows at least this much from the left light to the right light.
-const SIDE_LIGHT_RATIO_MIN: f64 = 1.5;
+/// grows at least this much from the left light to the right light. A relight that ignores the
+/// light (the photo itself) scores 1; a flat Lambertian surface 1.34 at these lights (`cos θi`,
+/// no falloff, mean over each half of the [-1, 1]² surface); highlights and normal-mapped
+/// shading add to that. Until 2026-12-04 the floor was 1.5, above the Lambertian response: a
+/// flat matte material would have failed it, and rusty-can-label (1.53, then 1.49) did.
+const SIDE_LIGHT_RATIO_MIN: f64 = 1.2;
 /// The shipped model's values, recorded by this test (`NAM_UPDATE_MEASURED=1 cargo test --release
 /// -p nam --test real_photos`) together with the model's fingerprint, so that they are computed,
 /// never edited by hand: identity log-L1, chromaticity error `Σ_c |o_c/Σo − p_c/Σp|` (0: same hue
