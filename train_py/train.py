@@ -304,6 +304,49 @@ class CaptureStream(torch.utils.data.IterableDataset):
             yield (size, *draw_batch(seeds, size, "cpu", self.bank, self.real_frac, self.phone))
 
 
+class StepProfiler:
+    """``train --profile-steps N``: runs ``torch.profiler`` over steps ``[first, first + N)`` and
+    writes the operators that took the most host time and the most device time (CUDA kernels
+    when there is a GPU) to ``path``: where a step's time goes, e.g. whether a GPU step waits for
+    the host to launch its kernels."""
+
+    def __init__(self, path: Path, first: int, steps: int, cuda: bool):
+        self.path, self.first, self.last, self.cuda = path, first, first + steps, cuda
+        self.prof: torch.profiler.profile | None = None
+        self.t0 = 0.0
+
+    def at(self, step: int) -> None:
+        """Called before each step ``step``: starts or finishes the profile."""
+        if step == self.first:
+            acts = [torch.profiler.ProfilerActivity.CPU]
+            if self.cuda:
+                acts.append(torch.profiler.ProfilerActivity.CUDA)
+                torch.cuda.synchronize()
+            self.prof = torch.profiler.profile(activities=acts)
+            self.prof.__enter__()
+            self.t0 = time.time()
+        elif step == self.last and self.prof is not None:
+            if self.cuda:
+                torch.cuda.synchronize()
+            wall = time.time() - self.t0
+            self.prof.__exit__(None, None, None)
+            events = self.prof.key_averages()
+            steps = self.last - self.first
+            kernels = sum(e.count for e in events if e.device_type == torch.autograd.DeviceType.CUDA)
+            lines = [
+                f"{steps} steps in {wall:.3f} s ({wall / steps * 1e3:.1f} ms/step); "
+                f"{kernels / steps:.0f} device kernels per step",
+                "",
+                "By host time:",
+                events.table(sort_by="self_cpu_time_total", row_limit=25),
+            ]
+            if self.cuda:
+                lines += ["", "By device time:", events.table(sort_by="self_cuda_time_total", row_limit=25)]
+            self.path.write_text("\n".join(lines) + "\n")
+            print(f"wrote {self.path}: {lines[0]}", flush=True)
+            self.prof = None
+
+
 def load_decoder(path: str, into: NamModel | None) -> nn.Module:
     """The map encoder ``E`` (frozen) of a pretrained decoder (``train_py.pretrain`` checkpoint), the
     target of the latent regression; its ``nd_enc`` and ``render`` are copied ``into`` a model."""
@@ -427,6 +470,13 @@ def parse_args(argv=None):
     ap.add_argument("--val-every", type=int, default=200, help="steps between validations (0: never)")
     ap.add_argument("--val-materials", type=int, default=6)
     ap.add_argument("--log-every", type=int, default=10)
+    ap.add_argument(
+        "--profile-steps",
+        type=int,
+        default=0,
+        help="profile this many steps after 5 warm-up steps (torch.profiler) and write the busiest "
+        "operators, by host and by device time, to OUT/profile.txt (0: off)",
+    )
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast for the matmuls")
     ap.add_argument(
         "--identity-frac",
@@ -631,7 +681,14 @@ def train(args) -> dict:
     #: Wall-clock time, step and time spent waiting for batches since the last log line (its
     #: s/step is the mean over those steps; only the log line reads the loss back from the GPU).
     log_t, log_step, data_s = time.time(), step, 0.0
+    profiler = (
+        StepProfiler(out / "profile.txt", step + 5, args.profile_steps, device.type == "cuda")
+        if args.profile_steps
+        else None
+    )
     while True:
+        if profiler is not None:
+            profiler.at(step)
         elapsed = time.time() - start
         progress = step / args.steps
         if args.minutes:

@@ -414,3 +414,18 @@ def test_map_probe_learns_the_normals_from_params_and_its_run_resumes_only_with_
     assert again.returncode != 0 and "--maps-weight" in again.stderr
     subprocess.run([*cmd, "--resume", "--maps-weight", "1"], cwd=REPO, check=True, capture_output=True, timeout=120)
     assert torch.load(tmp_path / "ckpt.pt", weights_only=False)["step"] == 3
+
+
+def test_profile_steps_writes_the_busiest_operators_and_log_lines_split_off_the_data_wait(tmp_path):
+    cmd = [sys.executable, "-m", "train_py.train", "--config", "tiny", "--steps", "8", "--size", "32"]
+    cmd += ["--batch", "2", "--outputs", "2", "--val-every", "0", "--threads", "1", "--log-every", "4"]
+    cmd += ["--profile-steps", "2", "--out", str(tmp_path)]
+    run = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    text = (tmp_path / "profile.txt").read_text()
+    head = text.splitlines()[0]
+    assert head.startswith("2 steps in ") and "ms/step" in head, head
+    assert "By host time:" in text and "aten::" in text
+    # Steps 4 and 8 log the mean over their 4 steps, with the time spent drawing batches.
+    logged = [line for line in run.stdout.splitlines() if line.startswith("step ")]
+    assert len(logged) == 3 and all("s/step (data " in line for line in logged), logged
