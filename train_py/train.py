@@ -150,7 +150,9 @@ def select_pixels(params: torch.Tensor, k: int, frac: float, generator: torch.Ge
 def select_shared_pixels(b: int, hw: int, k: int, frac: float, generator: torch.Generator | None, device):
     """Pixel indices ``[B, K, n]``, uniform without replacement, the same for every material."""
     n = max(1, round(frac * hw))
-    idx = torch.rand(k, hw, generator=generator).argsort(dim=1)[:, :n].to(device, non_blocking=True)
+    # A permutation per exemplar (0.55 ms for 8 × 128² here; sorting random keys took 7 ms, and
+    # 15 ms of host time per step beside a GPU).
+    idx = torch.stack([torch.randperm(hw, generator=generator)[:n] for _ in range(k)]).to(device, non_blocking=True)
     return idx.unsqueeze(0).expand(b, k, n)
 
 
