@@ -23,7 +23,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 #[cfg(target_arch = "x86_64")]
-use super::conv::min_len;
+use super::conv::{min_len, written};
 use super::conv::{Hwc, PackedConv};
 use super::direct;
 use crate::amx::{self, K_PAIRS, N_BLOCK, TILE};
@@ -226,12 +226,10 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, w: &[u32], rows: Range<usize>) -> Hw
     assert!(rows.end <= ho);
     let shape = Shape::new(conv, wo);
     let band = direct::band_rows(x.w, s, rows.len());
-    // Not zeroed first: `Shape::band` writes every value.
     let n = rows.len() * wo * cout;
-    let mut out: Vec<f32> = Vec::with_capacity(n);
     let first = rows.start;
-    out.spare_capacity_mut()[..n]
-        .par_chunks_mut(band * wo * cout)
+    let fill = |out: &mut [MaybeUninit<f32>]| {
+        out.par_chunks_mut(band * wo * cout)
         .with_min_len(min_len())
         .enumerate()
         .for_each_init(Vec::new, |pad: &mut Vec<u32>, (b, dst)| {
@@ -276,8 +274,9 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, w: &[u32], rows: Range<usize>) -> Hw
             // SAFETY: AMX (`available`, asserted by the caller).
             unsafe { shape.band(pad, w, dst, n_rows) };
         });
-    // SAFETY: the bands cover the `n` values, and `Shape::band` wrote each of its band's.
-    unsafe { out.set_len(n) };
+    };
+    // SAFETY: the bands cover the `n` values, and `Shape::band` writes each of its band's.
+    let (out, ()) = unsafe { written(n, fill) };
     Hwc {
         h: rows.len(),
         w: wo,

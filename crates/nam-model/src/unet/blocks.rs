@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use super::conv::{
     BAND_PIXELS, EW_PIXELS, Hwc, PackedConv, centred_with_stats, constant_response, ha_mix,
-    min_len, on_this_thread, sigmoid, wide,
+    min_len, on_this_thread, sigmoid, wide, written, written_pair,
 };
 use crate::bf16::Bf16Dense;
 use crate::error::Result;
@@ -106,13 +106,6 @@ impl Ha {
         // At stride 2 allocated once the centred copy is gone, so the two are not held together.
         // Not zeroed: the mix writes every value (`Mix::run`).
         let n = h * w * co;
-        let outputs = || {
-            (
-                Vec::with_capacity(n),
-                self.has_down.then(|| Vec::with_capacity(n)),
-            )
-        };
-        let (mut out, mut down): (Vec<f32>, Option<Vec<f32>>);
         let mix = Mix {
             cols,
             co,
@@ -120,24 +113,22 @@ impl Ha {
             bias: f32s(&bias),
             slope,
         };
-        match &self.inc1a {
+        let (out, down, ()) = match &self.inc1a {
             // Stride 2 (the first block of a level): the output has a quarter of the input's
             // pixels, so it runs in one piece.
             Some(c) => {
                 let main = self.main.run_with(&xc, &wt);
                 drop(xc);
-                (out, down) = outputs();
                 let c1b = self.inc1b.run(&c.run(x));
                 let c1b_bias = vec![0.0; half];
-                mix.run(
-                    &main.d,
-                    &c1b.d,
-                    &c1b_bias,
-                    0,
-                    &mut out.spare_capacity_mut()[..n],
-                    down.as_mut().map(|d| &mut d.spare_capacity_mut()[..n]),
-                    &post,
-                );
+                let fill = |o: &mut [MaybeUninit<f32>], d: Option<&mut [MaybeUninit<f32>]>| {
+                    mix.run(&main.d, &c1b.d, &c1b_bias, 0, o, d, &post);
+                };
+                // SAFETY: `Mix::run` writes every value of its output and of `down`.
+                #[allow(unsafe_code)]
+                unsafe {
+                    written_pair(n, self.has_down, fill)
+                }
             }
             // Stride 1: the fused GEMM and inc1b run over bands of output rows, the bands in
             // parallel, so their 7·C/2 + C/2 columns are never held for the whole image and are
@@ -152,7 +143,6 @@ impl Ha {
                 // one thread), at most `band_pixels` pixels each.
                 let threads = rayon::current_num_threads();
                 let band = (self.band_pixels / w).clamp(1, h.div_ceil(2 * threads).max(1));
-                (out, down) = outputs();
                 let main_wt = self.main.prepare((h, w), &wt);
                 // inc1b reads a band's GEMM output: `band` rows and the halo.
                 let inc1b_wt = self.inc1b.prepare(((band + 2).min(h), w), &self.inc1b.wt);
@@ -178,8 +168,7 @@ impl Ha {
                         })
                     };
                 let chunk = band * w * co;
-                let o = &mut out.spare_capacity_mut()[..n];
-                match down.as_mut().map(|d| &mut d.spare_capacity_mut()[..n]) {
+                let fill = |o: &mut [MaybeUninit<f32>], d: Option<&mut [MaybeUninit<f32>]>| match d {
                     Some(d) => o
                         .par_chunks_mut(chunk)
                         .zip(d.par_chunks_mut(chunk))
@@ -189,17 +178,16 @@ impl Ha {
                         .par_chunks_mut(chunk)
                         .enumerate()
                         .for_each(|(i, o)| run_band(i * band, o, None)),
+                };
+                // SAFETY: the bands cover the `n` values, and `Mix::run` writes every value of
+                // its band's output and `down`.
+                #[allow(unsafe_code)]
+                unsafe {
+                    written_pair(n, self.has_down, fill)
                 }
             }
-        }
-        let hwc = |mut d: Vec<f32>| {
-            // SAFETY: `Mix::run` wrote each of the `n` values (its output and `down`).
-            #[allow(unsafe_code)]
-            unsafe {
-                d.set_len(n)
-            };
-            Hwc { h, w, c: co, d }
         };
+        let hwc = |d| Hwc { h, w, c: co, d };
         (hwc(out), down.map(hwc))
     }
 }
@@ -530,82 +518,87 @@ impl Reverse {
         let (h, w, ci, co) = (x.h, x.w, self.cin, self.cout);
         let (ho, wo) = (2 * h, 2 * w);
         // up4 → relu, written to the parity positions.
-        let mut y = vec![0.0f32; ho * wo * co];
         let kk = 4 * ci;
         let rows = (BAND_PIXELS / w).max(1);
-        for par in 0..4 {
-            let (py, px) = (par / 2, par % 2);
-            let mut sub = vec![0.0f32; h * w * co];
-            sub.par_chunks_mut(rows * w * co)
-                .with_min_len(min_len())
-                .enumerate()
-                .for_each_init(
-                    || (Vec::new(), Vec::new()),
-                    |(col, pairs): &mut (Vec<f32>, Vec<u32>), (band, dst)| {
-                        let m = dst.len() / co;
-                        // Not zeroed first: every tap is written below, the ones outside the
-                        // image as zeros.
-                        col.resize(m * kk, 0.0);
-                        let p0 = band * rows * w;
-                        for p in 0..m {
-                            let (iy, ix) = ((p0 + p) / w, (p0 + p) % w);
-                            for ty in 0..2 {
-                                let sy = iy as isize + UP4_TAPS[py][ty].0;
-                                for tx in 0..2 {
-                                    let sx = ix as isize + UP4_TAPS[px][tx].0;
-                                    let t = p * kk + (ty * 2 + tx) * ci;
-                                    let tap = &mut col[t..t + ci];
-                                    if (0..h as isize).contains(&sy)
-                                        && (0..w as isize).contains(&sx)
-                                    {
-                                        let src = (sy as usize * w + sx as usize) * ci;
-                                        tap.copy_from_slice(&x.d[src..src + ci]);
-                                    } else {
-                                        tap.fill(0.0);
+        let fill = |y: &mut [MaybeUninit<f32>]| {
+            for par in 0..4 {
+                let (py, px) = (par / 2, par % 2);
+                let mut sub = vec![0.0f32; h * w * co];
+                sub.par_chunks_mut(rows * w * co)
+                    .with_min_len(min_len())
+                    .enumerate()
+                    .for_each_init(
+                        || (Vec::new(), Vec::new()),
+                        |(col, pairs): &mut (Vec<f32>, Vec<u32>), (band, dst)| {
+                            let m = dst.len() / co;
+                            // Not zeroed first: every tap is written below, the ones outside the
+                            // image as zeros.
+                            col.resize(m * kk, 0.0);
+                            let p0 = band * rows * w;
+                            for p in 0..m {
+                                let (iy, ix) = ((p0 + p) / w, (p0 + p) % w);
+                                for ty in 0..2 {
+                                    let sy = iy as isize + UP4_TAPS[py][ty].0;
+                                    for tx in 0..2 {
+                                        let sx = ix as isize + UP4_TAPS[px][tx].0;
+                                        let t = p * kk + (ty * 2 + tx) * ci;
+                                        let tap = &mut col[t..t + ci];
+                                        if (0..h as isize).contains(&sy)
+                                            && (0..w as isize).contains(&sx)
+                                        {
+                                            let src = (sy as usize * w + sx as usize) * ci;
+                                            tap.copy_from_slice(&x.d[src..src + ci]);
+                                        } else {
+                                            tap.fill(0.0);
+                                        }
                                     }
                                 }
                             }
-                        }
-                        if let Some(b) = &self.bf16 {
-                            b.up4[par].forward(m, col, kk, dst, co, pairs);
-                            return;
-                        }
-                        sgemm(
-                            m,
-                            co,
-                            kk,
-                            Mat { data: col, ld: kk },
-                            Mat {
-                                data: &self.up4[par],
-                                ld: co,
-                            },
-                            dst,
-                            co,
-                            false,
-                            1,
-                        );
-                    },
-                );
-            // Output rows of parity py take input row oy / 2, pixels of parity px.
-            y.par_chunks_mut(wo * co)
-                .with_min_len(min_len())
-                .skip(py)
-                .step_by(2)
-                .zip(sub.par_chunks(w * co))
-                .for_each(|(row, src)| {
-                    wide(
-                        #[inline(always)]
-                        || {
-                            for (ix, v) in src.chunks_exact(co).enumerate() {
-                                let o = &mut row[(2 * ix + px) * co..(2 * ix + px + 1) * co];
-                                for ((o, &v), &b) in o.iter_mut().zip(v).zip(&self.up4_b) {
-                                    *o = (v + b).max(0.0);
-                                }
+                            if let Some(b) = &self.bf16 {
+                                b.up4[par].forward(m, col, kk, dst, co, pairs);
+                                return;
                             }
+                            sgemm(
+                                m,
+                                co,
+                                kk,
+                                Mat { data: col, ld: kk },
+                                Mat {
+                                    data: &self.up4[par],
+                                    ld: co,
+                                },
+                                dst,
+                                co,
+                                false,
+                                1,
+                            );
                         },
-                    )
-                });
-        }
+                    );
+                // Output rows of parity py take input row oy / 2, pixels of parity px.
+                y.par_chunks_mut(wo * co)
+                    .with_min_len(min_len())
+                    .skip(py)
+                    .step_by(2)
+                    .zip(sub.par_chunks(w * co))
+                    .for_each(|(row, src)| {
+                        wide(
+                            #[inline(always)]
+                            || {
+                                for (ix, v) in src.chunks_exact(co).enumerate() {
+                                    let o = &mut row[(2 * ix + px) * co..(2 * ix + px + 1) * co];
+                                    for ((o, &v), &b) in o.iter_mut().zip(v).zip(&self.up4_b) {
+                                        o.write((v + b).max(0.0));
+                                    }
+                                }
+                            },
+                        )
+                    });
+            }
+        };
+        // SAFETY: parity (py, px) writes every output pixel (oy, ox) with oy ≡ py and ox ≡ px
+        // (mod 2): the four write each value once.
+        #[allow(unsafe_code)]
+        let (y, ()) = unsafe { written(ho * wo * co, fill) };
         let mut y = self.conv.run(&Hwc {
             h: ho,
             w: wo,

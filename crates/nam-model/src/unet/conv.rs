@@ -29,6 +29,48 @@ pub(super) struct Hwc {
     pub(super) d: Vec<f32>,
 }
 
+/// A vector of `n` values that `write` writes in place, not zeroed first (zeroing an output
+/// that a kernel then overwrites is a pass over memory for nothing), and what `write` returns.
+/// One home for the unsafe step of every such output.
+///
+/// # Safety
+/// `write` writes every one of the `n` values; the vector is then read as initialised.
+#[allow(unsafe_code)]
+pub(super) unsafe fn written<R>(
+    n: usize,
+    write: impl FnOnce(&mut [MaybeUninit<f32>]) -> R,
+) -> (Vec<f32>, R) {
+    let mut v = Vec::with_capacity(n);
+    let r = write(&mut v.spare_capacity_mut()[..n]);
+    // SAFETY: the caller's contract: `write` wrote the `n` values.
+    unsafe { v.set_len(n) };
+    (v, r)
+}
+
+/// [`written`] for two vectors of `n` values, the second only where `second` (the outputs of
+/// one pass that writes both).
+///
+/// # Safety
+/// As [`written`], for each vector.
+#[allow(unsafe_code)]
+pub(super) unsafe fn written_pair<R>(
+    n: usize,
+    second: bool,
+    write: impl FnOnce(&mut [MaybeUninit<f32>], Option<&mut [MaybeUninit<f32>]>) -> R,
+) -> (Vec<f32>, Option<Vec<f32>>, R) {
+    let mut b = second.then(|| Vec::with_capacity(n));
+    let both = |a: &mut [MaybeUninit<f32>]| {
+        write(a, b.as_mut().map(|b| &mut b.spare_capacity_mut()[..n]))
+    };
+    // SAFETY: the caller's contract: `write` wrote the `n` values of the first vector.
+    let (a, r) = unsafe { written(n, both) };
+    if let Some(b) = b.as_mut() {
+        // SAFETY: the caller's contract: `write` wrote the `n` values of the second.
+        unsafe { b.set_len(n) };
+    }
+    (a, b, r)
+}
+
 /// A k×k convolution (or several fused along the output channels) packed as
 /// the GEMM right-hand side `[k·k·cin, cout]`, row index `(ky·k + kx)·cin + ci`.
 #[derive(Debug, Clone)]
@@ -328,28 +370,25 @@ pub(super) fn centred_with_stats(x: &Hwc, eps: f32) -> (Hwc, Vec<f64>, Vec<f32>)
             .reduce(|| vec![0.0; c], add);
     let mean: Vec<f64> = sum.iter().map(|s| s / n).collect();
     let mean32: Vec<f32> = mean.iter().map(|&m| m as f32).collect();
-    // Not zeroed first: `block_centre` writes every value.
-    let mut d: Vec<f32> = Vec::with_capacity(x.d.len());
-    let var = d.spare_capacity_mut()[..x.d.len()]
-        .par_chunks_mut(c * EW_PIXELS)
-        .with_min_len(min_len())
-        .zip(x.d.par_chunks(c * EW_PIXELS))
-        .map(|(dst, src)| {
-            wide(
-                #[inline(always)]
-                || {
-                    let mut acc = vec![0.0f64; c];
-                    block_centre(Group::of(c), src, dst, (&mean32, &mean), &mut acc);
-                    acc
-                },
-            )
-        })
-        .reduce(|| vec![0.0; c], add);
-    // SAFETY: the blocks cover the values, and `block_centre` wrote each of its block's.
-    #[allow(unsafe_code)]
-    unsafe {
-        d.set_len(x.d.len())
+    let fill = |d: &mut [MaybeUninit<f32>]| {
+        d.par_chunks_mut(c * EW_PIXELS)
+            .with_min_len(min_len())
+            .zip(x.d.par_chunks(c * EW_PIXELS))
+            .map(|(dst, src)| {
+                wide(
+                    #[inline(always)]
+                    || {
+                        let mut acc = vec![0.0f64; c];
+                        block_centre(Group::of(c), src, dst, (&mean32, &mean), &mut acc);
+                        acc
+                    },
+                )
+            })
+            .reduce(|| vec![0.0; c], add)
     };
+    // SAFETY: the blocks cover the values, and `block_centre` writes each of its block's.
+    #[allow(unsafe_code)]
+    let (d, var) = unsafe { written(x.d.len(), fill) };
     let inv = var
         .iter()
         .map(|q| (1.0 / (q / n + f64::from(eps)).sqrt()) as f32)
