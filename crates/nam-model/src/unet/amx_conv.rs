@@ -22,9 +22,9 @@ use std::ops::Range;
 #[cfg(target_arch = "x86_64")]
 use rayon::prelude::*;
 
+use super::conv::{Hwc, PackedConv};
 #[cfg(target_arch = "x86_64")]
 use super::conv::{min_len, written};
-use super::conv::{Hwc, PackedConv};
 use super::direct;
 use crate::amx::{self, K_PAIRS, N_BLOCK, TILE};
 use crate::bf16::to_bf16;
@@ -230,50 +230,50 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, w: &[u32], rows: Range<usize>) -> Hw
     let first = rows.start;
     let fill = |out: &mut [MaybeUninit<f32>]| {
         out.par_chunks_mut(band * wo * cout)
-        .with_min_len(min_len())
-        .enumerate()
-        .for_each_init(Vec::new, |pad: &mut Vec<u32>, (b, dst)| {
-            let oy0 = first + b * band;
-            let n_rows = dst.len() / (wo * cout);
-            // Pairs written by earlier bands of this thread stay: finite values, read only
-            // against zero weights or into discarded sums.
-            pad.resize(shape.pad_len(n_rows), 0);
-            let (cp, wp, p) = (shape.cp, shape.wp, conv.pad);
-            // Input columns of a padded row: [p, p + inner) read x columns 0.., the rest repeat
-            // the first or the last.
-            let inner = x.w.min(wp - p);
-            let row_len = wp * cp;
-            for py in 0..(n_rows - 1) * s + k {
-                let iy = (oy0 * s + py).saturating_sub(p).min(x.h - 1);
-                let at = py * row_len;
-                if py > 0 && iy == (oy0 * s + py - 1).saturating_sub(p).min(x.h - 1) {
-                    // The same input row as the last one (the top or bottom padding).
-                    pad.copy_within(at - row_len..at, at);
-                    continue;
-                }
-                let (src, dst) = (&x.d[iy * x.w * x.c..], &mut pad[at..at + row_len]);
-                // SAFETY (both): AVX-512 BF16 (`available`); each destination holds the pairs
-                // of its source values.
-                if x.c == cin && cin.is_multiple_of(2) {
-                    // Whole pixels of pairs: the row's inner columns convert as one run.
-                    unsafe {
-                        crate::bf16::pack_row_avx512(
-                            &src[..inner * cin],
-                            &mut dst[p * cp..(p + inner) * cp],
-                        );
+            .with_min_len(min_len())
+            .enumerate()
+            .for_each_init(Vec::new, |pad: &mut Vec<u32>, (b, dst)| {
+                let oy0 = first + b * band;
+                let n_rows = dst.len() / (wo * cout);
+                // Pairs written by earlier bands of this thread stay: finite values, read only
+                // against zero weights or into discarded sums.
+                pad.resize(shape.pad_len(n_rows), 0);
+                let (cp, wp, p) = (shape.cp, shape.wp, conv.pad);
+                // Input columns of a padded row: [p, p + inner) read x columns 0.., the rest repeat
+                // the first or the last.
+                let inner = x.w.min(wp - p);
+                let row_len = wp * cp;
+                for py in 0..(n_rows - 1) * s + k {
+                    let iy = (oy0 * s + py).saturating_sub(p).min(x.h - 1);
+                    let at = py * row_len;
+                    if py > 0 && iy == (oy0 * s + py - 1).saturating_sub(p).min(x.h - 1) {
+                        // The same input row as the last one (the top or bottom padding).
+                        pad.copy_within(at - row_len..at, at);
+                        continue;
                     }
-                } else {
-                    let d = &mut dst[p * cp..(p + inner) * cp];
-                    unsafe { crate::bf16::pack_pixels_avx512(src, x.c, cin, d) };
+                    let (src, dst) = (&x.d[iy * x.w * x.c..], &mut pad[at..at + row_len]);
+                    // SAFETY (both): AVX-512 BF16 (`available`); each destination holds the pairs
+                    // of its source values.
+                    if x.c == cin && cin.is_multiple_of(2) {
+                        // Whole pixels of pairs: the row's inner columns convert as one run.
+                        unsafe {
+                            crate::bf16::pack_row_avx512(
+                                &src[..inner * cin],
+                                &mut dst[p * cp..(p + inner) * cp],
+                            );
+                        }
+                    } else {
+                        let d = &mut dst[p * cp..(p + inner) * cp];
+                        unsafe { crate::bf16::pack_pixels_avx512(src, x.c, cin, d) };
+                    }
+                    for px in (0..p).chain(p + inner..wp) {
+                        let from = px.saturating_sub(p).min(x.w - 1) + p;
+                        dst.copy_within(from * cp..(from + 1) * cp, px * cp);
+                    }
                 }
-                for px in (0..p).chain(p + inner..wp) {
-                    let from = px.saturating_sub(p).min(x.w - 1) + p;
-                    dst.copy_within(from * cp..(from + 1) * cp, px * cp);
-                }
-            }
-            // SAFETY: AMX (`available`, asserted by the caller).
-            unsafe { shape.band(pad, w, dst, n_rows) };
-        });
+                // SAFETY: AMX (`available`, asserted by the caller).
+                unsafe { shape.band(pad, w, dst, n_rows) };
+            });
     };
     // SAFETY: the bands cover the `n` values, and `Shape::band` writes each of its band's.
     let (out, ()) = unsafe { written(n, fill) };

@@ -168,7 +168,8 @@ impl Ha {
                         })
                     };
                 let chunk = band * w * co;
-                let fill = |o: &mut [MaybeUninit<f32>], d: Option<&mut [MaybeUninit<f32>]>| match d {
+                let fill = |o: &mut [MaybeUninit<f32>], d: Option<&mut [MaybeUninit<f32>]>| match d
+                {
                     Some(d) => o
                         .par_chunks_mut(chunk)
                         .zip(d.par_chunks_mut(chunk))

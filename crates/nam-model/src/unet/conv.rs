@@ -59,9 +59,8 @@ pub(super) unsafe fn written_pair<R>(
     write: impl FnOnce(&mut [MaybeUninit<f32>], Option<&mut [MaybeUninit<f32>]>) -> R,
 ) -> (Vec<f32>, Option<Vec<f32>>, R) {
     let mut b = second.then(|| Vec::with_capacity(n));
-    let both = |a: &mut [MaybeUninit<f32>]| {
-        write(a, b.as_mut().map(|b| &mut b.spare_capacity_mut()[..n]))
-    };
+    let both =
+        |a: &mut [MaybeUninit<f32>]| write(a, b.as_mut().map(|b| &mut b.spare_capacity_mut()[..n]));
     // SAFETY: the caller's contract: `write` wrote the `n` values of the first vector.
     let (a, r) = unsafe { written(n, both) };
     if let Some(b) = b.as_mut() {
