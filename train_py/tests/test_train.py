@@ -429,3 +429,21 @@ def test_profile_steps_writes_the_busiest_operators_and_log_lines_split_off_the_
     # Steps 4 and 8 log the mean over their 4 steps, with the time spent drawing batches.
     logged = [line for line in run.stdout.splitlines() if line.startswith("step ")]
     assert len(logged) == 3 and all("s/step (data " in line for line in logged), logged
+
+
+def test_activation_penalty_builds_its_graph_only_where_a_tensor_exceeds_the_limit_and_sums_the_same():
+    torch.manual_seed(1)
+    m = NamModel(CONFIGS["tiny"]).train()
+    x = torch.rand(1, 4, 16, 16) * 50
+    probe = ActivationExcess(m.est, 0.0)
+    m.estimate(x)
+    peaks = sorted(float(t.detach().abs().max()) for t in probe.traced)
+    limit = peaks[len(peaks) // 2]  # about half the tensors exceed it
+    penalty = ActivationExcess(m.est, limit)
+    m.estimate(x)
+    traced = list(penalty.traced)
+    over = [t for t in traced if float(t.detach().abs().max()) > limit]
+    assert 0 < len(over) < len(traced)
+    want = sum(torch.relu(t.detach().float().abs() - limit).mean() / limit for t in traced)
+    got = penalty.take()
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=0)
