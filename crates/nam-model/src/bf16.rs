@@ -11,7 +11,7 @@
 
 use crate::amx;
 #[cfg(target_arch = "x86_64")]
-use crate::simd;
+use crate::simd::{self, Line};
 
 /// Rows of the microkernel (activations) and columns (two 16-lane registers).
 const MR: usize = 8;
@@ -57,7 +57,8 @@ pub(crate) struct Bf16Dense {
     inp: usize,
     out: usize,
     out_pad: usize,
-    wp: Vec<u32>,
+    /// On whole cache lines ([`Line`]): each row of `out_pad` pairs starts a line.
+    wp: Vec<Line>,
     slope: Option<f32>,
     /// Products on AMX tiles ([`amx::matmul`]) instead of `vdpbf16ps`.
     amx: bool,
@@ -81,11 +82,12 @@ impl Bf16Dense {
         // AMX reads whole tiles: k padded to 16 pairs, columns to 32 (= NR).
         let kp = inp.div_ceil(2).div_ceil(amx::K_PAIRS) * amx::K_PAIRS;
         let out_pad = out.div_ceil(NR.max(amx::N_BLOCK)) * NR.max(amx::N_BLOCK);
-        let mut wp = vec![0u32; kp * out_pad];
+        let mut wp = Vec::new();
+        let packed = simd::filled(&mut wp, kp * out_pad, 0);
         for o in 0..out {
             for i in 0..inp {
                 let bits = to_bf16(w[o * inp + i]);
-                wp[(i / 2) * out_pad + o] |= bits << (16 * (i % 2));
+                packed[(i / 2) * out_pad + o] |= bits << (16 * (i % 2));
             }
         }
         Self {
@@ -112,7 +114,7 @@ impl Bf16Dense {
         ldx: usize,
         y: &mut [f32],
         ldy: usize,
-        pairs: &mut Vec<u32>,
+        pairs: &mut Vec<Line>,
     ) {
         let kp = self.inp.div_ceil(2);
         // Row stride of the packed pairs and padded row count of each kernel.
@@ -124,8 +126,7 @@ impl Bf16Dense {
         } else {
             (kp, m.div_ceil(MR) * MR)
         };
-        pairs.clear();
-        pairs.resize(m_pad * stride, 0);
+        let pairs = simd::filled(pairs, m_pad * stride, 0);
         for r in 0..m {
             let row = &x[r * ldx..r * ldx + self.inp];
             let dst = &mut pairs[r * stride..r * stride + kp];
@@ -155,7 +156,7 @@ impl Bf16Dense {
                     pairs,
                     self.out,
                     self.out_pad,
-                    &self.wp,
+                    simd::words(&self.wp),
                     y,
                     ldy,
                     |v| match slope {
@@ -184,7 +185,8 @@ impl Bf16Dense {
                 let rows: [&[u32]; MR] =
                     std::array::from_fn(|r| &a[(i0 + r) * kp..(i0 + r + 1) * kp]);
                 for p in 0..kp {
-                    let wrow = &self.wp[p * self.out_pad + j0..p * self.out_pad + j0 + NR];
+                    let wrow =
+                        &simd::words(&self.wp)[p * self.out_pad + j0..p * self.out_pad + j0 + NR];
                     // SAFETY: `wrow` has NR = 32 u32 values = two 512-bit vectors.
                     let (b0, b1) = unsafe {
                         (

@@ -5,6 +5,7 @@
 use crate::bf16::Bf16Dense;
 use crate::int8::Int8Dense;
 use crate::sgemm::{Mat, sgemm};
+use crate::simd::Line;
 
 /// One dense layer `y = x · Wᵀ` stored transposed (`wt[i·out + o] = W[o, i]`),
 /// followed by an optional LeakyReLU.
@@ -66,7 +67,7 @@ pub(crate) trait Layer {
         ldx: usize,
         y: &mut [f32],
         ldy: usize,
-        packed: &mut Vec<u32>,
+        packed: &mut Vec<Line>,
     );
 }
 
@@ -75,7 +76,7 @@ impl Layer for Dense {
         self.out
     }
 
-    fn run(&self, n: usize, x: &[f32], ldx: usize, y: &mut [f32], ldy: usize, _: &mut Vec<u32>) {
+    fn run(&self, n: usize, x: &[f32], ldx: usize, y: &mut [f32], ldy: usize, _: &mut Vec<Line>) {
         sgemm(
             n,
             self.out,
@@ -114,7 +115,7 @@ impl Layer for Reduced {
         ldx: usize,
         y: &mut [f32],
         ldy: usize,
-        packed: &mut Vec<u32>,
+        packed: &mut Vec<Line>,
     ) {
         match self {
             Self::Bf16(l) => l.forward(n, x, ldx, y, ldy, packed),
@@ -136,7 +137,7 @@ pub(crate) fn chain<L: Layer>(
     b: &mut [f32],
     last: &mut [f32],
     ldlast: usize,
-    packed: &mut Vec<u32>,
+    packed: &mut Vec<Line>,
 ) {
     let Some((tail, body)) = layers.split_last() else {
         for r in 0..n {

@@ -13,7 +13,7 @@
 #![allow(unsafe_code)]
 
 #[cfg(target_arch = "x86_64")]
-use crate::simd;
+use crate::simd::{self, Line};
 
 /// Rows of the microkernel (activations) and columns (two 16-lane registers).
 const MR: usize = 8;
@@ -45,7 +45,8 @@ pub(crate) struct Int8Dense {
     inp: usize,
     out: usize,
     out_pad: usize,
-    wq: Vec<u32>,
+    /// On whole cache lines ([`Line`]): each row of `out_pad` quads starts a line.
+    wq: Vec<Line>,
     /// `s_o` per output column (`out_pad`, zero in the padding).
     scale: Vec<f32>,
     /// `128 · Σ_i W_q[o, i]` per output column (`out_pad`).
@@ -63,7 +64,8 @@ impl Int8Dense {
         );
         let quads = inp.div_ceil(QUAD);
         let out_pad = out.div_ceil(NR) * NR;
-        let mut wq = vec![0u32; quads * out_pad];
+        let mut wq = Vec::new();
+        let packed = simd::filled(&mut wq, quads * out_pad, 0);
         let mut scale = vec![0.0f32; out_pad];
         let mut offset_sum = vec![0i32; out_pad];
         for o in 0..out {
@@ -74,7 +76,7 @@ impl Int8Dense {
             for (i, &v) in row.iter().enumerate() {
                 let q = (v * inv).round().clamp(-QMAX, QMAX) as i8;
                 offset_sum[o] += OFFSET * i32::from(q);
-                wq[(i / QUAD) * out_pad + o] |= u32::from(q as u8) << (8 * (i % QUAD));
+                packed[(i / QUAD) * out_pad + o] |= u32::from(q as u8) << (8 * (i % QUAD));
             }
         }
         Self {
@@ -102,7 +104,7 @@ impl Int8Dense {
         ldx: usize,
         y: &mut [f32],
         ldy: usize,
-        packed: &mut Vec<u32>,
+        packed: &mut Vec<Line>,
     ) {
         let m_pad = m.div_ceil(MR) * MR;
         self.quantise_rows((m, m_pad), x, ldx, packed, cfg!(target_arch = "x86_64"));
@@ -111,10 +113,10 @@ impl Int8Dense {
         // SAFETY: callers construct the int8 path only when `int8_supported()`; `packed` holds
         // m_pad·quads values then m_pad scales, `wq` quads·out_pad (see `quantise_rows`, `new`).
         unsafe {
-            self.kernel(m, m_pad, packed, y, ldy);
+            self.kernel(m, m_pad, simd::words(packed), y, ldy);
         }
         #[cfg(not(target_arch = "x86_64"))]
-        self.products_reference(m, packed, y, ldy);
+        self.products_reference(m, simd::words(packed), y, ldy);
     }
 
     /// The same arithmetic in scalar code (quantisation, products, scaling, activation): what
@@ -127,10 +129,10 @@ impl Int8Dense {
         ldx: usize,
         y: &mut [f32],
         ldy: usize,
-        packed: &mut Vec<u32>,
+        packed: &mut Vec<Line>,
     ) {
         self.quantise_rows((m, m.div_ceil(MR) * MR), x, ldx, packed, false);
-        self.products_reference(m, packed, y, ldy);
+        self.products_reference(m, simd::words(packed), y, ldy);
     }
 
     /// Packs `m` rows as u8 quads (`x_q + 128`), `m_pad` rows of `quads` values, padding rows
@@ -142,13 +144,12 @@ impl Int8Dense {
         (m, m_pad): (usize, usize),
         x: &[f32],
         ldx: usize,
-        packed: &mut Vec<u32>,
+        packed: &mut Vec<Line>,
         vector: bool,
     ) {
         let quads = self.inp.div_ceil(QUAD);
         let fill = u32::from_ne_bytes([OFFSET as u8; 4]);
-        packed.clear();
-        packed.resize(m_pad * quads + m_pad, fill);
+        let packed = simd::filled(packed, m_pad * quads + m_pad, fill);
         let (rows, scales) = packed.split_at_mut(m_pad * quads);
         for r in 0..m {
             let row = &x[r * ldx..r * ldx + self.inp];
@@ -182,7 +183,10 @@ impl Int8Dense {
             for o in 0..self.out {
                 let mut sum = 0i32;
                 for p in 0..quads {
-                    let (a, w) = (packed[r * quads + p], self.wq[p * self.out_pad + o]);
+                    let (a, w) = (
+                        packed[r * quads + p],
+                        simd::words(&self.wq)[p * self.out_pad + o],
+                    );
                     for j in 0..QUAD {
                         let av = i32::from((a >> (8 * j)) as u8);
                         let wv = i32::from((w >> (8 * j)) as u8 as i8);
@@ -207,7 +211,8 @@ impl Int8Dense {
                 let rows: [&[u32]; MR] =
                     std::array::from_fn(|r| &a[(i0 + r) * quads..(i0 + r + 1) * quads]);
                 for p in 0..quads {
-                    let wrow = &self.wq[p * self.out_pad + j0..p * self.out_pad + j0 + NR];
+                    let wrow =
+                        &simd::words(&self.wq)[p * self.out_pad + j0..p * self.out_pad + j0 + NR];
                     // SAFETY: `wrow` has NR = 32 u32 values = two 512-bit vectors.
                     let (b0, b1) = unsafe {
                         (

@@ -11,6 +11,7 @@ use crate::dense::chain;
 use crate::encoding::{direction_triple, encode_into};
 use crate::error::{Result, check_len};
 use crate::sgemm::{Mat, sgemm};
+use crate::simd::Line;
 
 /// Where a tile's material part `W_p·p` of the first render layer comes from.
 #[derive(Clone, Copy)]
@@ -48,7 +49,7 @@ pub(crate) struct Scratch {
     /// ND_enc output (`n × nd_len`).
     pub(super) nd: Vec<f32>,
     log: Vec<f32>,
-    packed: Vec<u32>,
+    packed: Vec<Line>,
 }
 
 impl RenderNet {

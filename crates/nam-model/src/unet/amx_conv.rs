@@ -28,6 +28,7 @@ use super::conv::{min_len, written};
 use super::direct;
 use crate::amx::{self, K_PAIRS, N_BLOCK, TILE};
 use crate::bf16::to_bf16;
+use crate::simd::{self, LINE_WORDS, Line};
 
 /// True when this CPU runs the bf16 convolution on AMX tiles (AMX-BF16 granted by the OS, and
 /// the AVX-512 BF16 that packs the operands).
@@ -79,8 +80,9 @@ impl Shape {
 
     /// `wt` (`[k·k·cin, cout]`, [`PackedConv`]'s layout) as the B operand: row `ky·kd + kx·cp +
     /// ci/2` holds input channel `ci` of tap `(ky, kx)` in the bf16 half `ci % 2`, zero elsewhere.
-    fn pack(&self, wt: &[f32], cin: usize) -> Vec<u32> {
-        let mut w = vec![0u32; self.k * self.kd * self.op];
+    fn pack(&self, wt: &[f32], cin: usize) -> Vec<Line> {
+        let mut lines = Vec::new();
+        let w = simd::filled(&mut lines, self.k * self.kd * self.op, 0);
         for (t, tap) in wt.chunks_exact(cin * self.cout).enumerate() {
             let (ky, kx) = (t / self.k, t % self.k);
             for (ci, row) in tap.chunks_exact(self.cout).enumerate() {
@@ -91,7 +93,7 @@ impl Shape {
                 }
             }
         }
-        w
+        lines
     }
 
     /// Pairs of a band's padded input for `n_rows` output rows, with the slack its last tiles
@@ -198,18 +200,18 @@ impl Shape {
 
 /// The weights `wt` of `conv` (packed as `conv.wt`) as [`run_rows`] reads them, once for any
 /// number of calls (the packing does not depend on the image).
-pub(super) fn pack_weights(conv: &PackedConv, wt: &[f32]) -> Vec<u32> {
+pub(super) fn pack_weights(conv: &PackedConv, wt: &[f32]) -> Vec<Line> {
     assert_eq!(wt.len(), conv.k * conv.k * conv.cin * conv.cout);
     Shape::new(conv, 1).pack(wt, conv.cin)
 }
 
 /// Output rows `rows` of `conv` applied to `x` with weights `w` ([`pack_weights`]), the values
 /// of [`PackedConv::run_rows`] with bf16 products and f32 sums. Only where [`available`].
-pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, w: &[u32], rows: Range<usize>) -> Hwc {
+pub(super) fn run_rows(conv: &PackedConv, x: &Hwc, w: &[Line], rows: Range<usize>) -> Hwc {
     assert!(available(), "AMX convolution without AMX-BF16");
     #[cfg(target_arch = "x86_64")]
     {
-        run_rows_x86(conv, x, w, rows)
+        run_rows_x86(conv, x, simd::words(w), rows)
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -232,12 +234,14 @@ fn run_rows_x86(conv: &PackedConv, x: &Hwc, w: &[u32], rows: Range<usize>) -> Hw
         out.par_chunks_mut(band * wo * cout)
             .with_min_len(min_len())
             .enumerate()
-            .for_each_init(Vec::new, |pad: &mut Vec<u32>, (b, dst)| {
+            .for_each_init(Vec::new, |lines: &mut Vec<Line>, (b, dst)| {
                 let oy0 = first + b * band;
                 let n_rows = dst.len() / (wo * cout);
                 // Pairs written by earlier bands of this thread stay: finite values, read only
-                // against zero weights or into discarded sums.
-                pad.resize(shape.pad_len(n_rows), 0);
+                // against zero weights or into discarded sums. Whole lines: where `cp` is a
+                // multiple of 16 pairs, every tile row read from the band starts a line.
+                lines.resize(shape.pad_len(n_rows).div_ceil(LINE_WORDS), Line::default());
+                let pad = simd::words_mut(lines);
                 let (cp, wp, p) = (shape.cp, shape.wp, conv.pad);
                 // Input columns of a padded row: [p, p + inner) read x columns 0.., the rest repeat
                 // the first or the last.

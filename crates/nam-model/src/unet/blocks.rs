@@ -14,6 +14,7 @@ use super::conv::{
 use crate::bf16::Bf16Dense;
 use crate::error::Result;
 use crate::sgemm::{Mat, sgemm};
+use crate::simd::Line;
 
 /// One HA-Conv, packed: `sigmoid(gate(x))·leaky(feat(IN(x))) + cat(inc1b(inc1a(x)), inc2(x))`.
 ///
@@ -530,7 +531,7 @@ impl Reverse {
                     .enumerate()
                     .for_each_init(
                         || (Vec::new(), Vec::new()),
-                        |(col, pairs): &mut (Vec<f32>, Vec<u32>), (band, dst)| {
+                        |(col, pairs): &mut (Vec<f32>, Vec<Line>), (band, dst)| {
                             let m = dst.len() / co;
                             // Not zeroed first: every tap is written below, the ones outside the
                             // image as zeros.

@@ -90,7 +90,7 @@ pub(super) struct PackedConv {
 /// A conv's weights prepared for the kernel that runs it ([`PackedConv::prepare`]).
 pub(super) enum Prepared<'a> {
     /// bf16 pairs for the AMX tiles.
-    Amx(Vec<u32>),
+    Amx(Vec<crate::simd::Line>),
     /// Transformed for Winograd, one GEMM operand per point.
     Winograd(Vec<direct::Gemm>),
     /// Packed as [`PackedConv::wt`]; each kernel repacks them per call (cheap beside the
