@@ -91,9 +91,31 @@ CONFIGS = {
 }
 
 
+def replicate_pad(x: torch.Tensor, pad: tuple[int, int, int, int]) -> torch.Tensor:
+    """``F.pad(x, pad, mode="replicate")`` for ``[B, C, H, W]`` (pad = left, right, top, bottom).
+
+    Under ``torch.compile`` the edges are concatenated instead: Inductor's
+    ``replication_pad2d_backward`` asserts contiguous strides and fails on the channels-last
+    gradients the convolutions return (torch 2.15, CPU). The values are the same either way."""
+    if not torch.compiler.is_compiling():
+        return F.pad(x, pad, mode="replicate")
+    return replicate_pad_by_cat(x, pad)
+
+
+def replicate_pad_by_cat(x: torch.Tensor, pad: tuple[int, int, int, int]) -> torch.Tensor:
+    """:func:`replicate_pad` as concatenated, expanded edge columns and rows (what it runs compiled)."""
+    left, right, top, bottom = pad
+    x = torch.cat([x[..., :1].expand(*x.shape[:-1], left), x, x[..., -1:].expand(*x.shape[:-1], right)], dim=-1)
+    rows = x.shape[:-2]
+    width = x.shape[-1]
+    top_rows = x[..., :1, :].expand(*rows, top, width)
+    bottom_rows = x[..., -1:, :].expand(*rows, bottom, width)
+    return torch.cat([top_rows, x, bottom_rows], dim=-2)
+
+
 def conv3x3(x: torch.Tensor, weight: torch.Tensor, stride: int, bias: torch.Tensor | None = None) -> torch.Tensor:
     """3×3 convolution with replicate padding 1."""
-    return F.conv2d(F.pad(x, (1, 1, 1, 1), mode="replicate"), weight, bias, stride=stride)
+    return F.conv2d(replicate_pad(x, (1, 1, 1, 1)), weight, bias, stride=stride)
 
 
 def instance_norm(x: torch.Tensor) -> torch.Tensor:
@@ -116,7 +138,7 @@ class Conv(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if self.pad:
-            x = F.pad(x, (self.pad,) * 4, mode="replicate")
+            x = replicate_pad(x, (self.pad,) * 4)
         return F.conv2d(x, self.weight, stride=self.stride)
 
 
@@ -146,7 +168,7 @@ class ConvBN(nn.Module):
         if self.kind == "conv":
             p = self.k // 2
             if p:
-                x = F.pad(x, (p,) * 4, mode="replicate")
+                x = replicate_pad(x, (p,) * 4)
             y = F.conv2d(x, self.weight, self.bias, stride=self.stride)
         elif self.kind == "convT4":
             y = F.conv_transpose2d(x, self.weight, self.bias, stride=2, padding=1)
@@ -252,7 +274,7 @@ class UNet(nn.Module):
         pad_h = (-height) % SIZE_MULTIPLE
         pad_w = (-width) % SIZE_MULTIPLE
         if pad_h or pad_w:
-            x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
+            x = replicate_pad(x, (0, pad_w, 0, pad_h))
         photo = x
         x = self.stem(x)
         e1 = self.enc1(x)

@@ -119,12 +119,18 @@ class ActivationExcess:
     Most steps nothing exceeds the limit, so the penalty's graph is built only for the tensors
     that do: :meth:`take` reads every traced tensor's largest magnitude first (one reduction each,
     outside autograd, and one read-back for all of them). Building it for every tensor made a
-    CPU training step ~40% slower, and on a GPU it launched ~700 more kernels a step."""
+    CPU training step ~40% slower, and on a GPU it launched ~700 more kernels a step. Under
+    ``train --compile`` the penalty is built for every tensor instead, inside the compiled graph:
+    there it fuses into the kernels that write the tensors, where returning the tensors for
+    :meth:`take` would keep each one in memory (the compiled U-Net's forward and backward took
+    1.6× as long with them)."""
 
     def __init__(self, unet: nn.Module, limit: float):
         self.unet = unet
         self.limit = limit
         self.traced: list[torch.Tensor] = []
+        #: Penalties already computed inside a compiled graph (scalars).
+        self.computed: list[torch.Tensor] = []
         kinds = (Conv, ConvBN, Affine, nn.BatchNorm2d, HAConv, BasicBlock, ReverseBlock)
         for module in unet.modules():
             if isinstance(module, kinds):
@@ -133,12 +139,18 @@ class ActivationExcess:
     def _hook(self, _module: nn.Module, _inputs, output: torch.Tensor) -> None:
         # ``unet.training``, not the module's: frozen BatchNorms are in eval mode but still count.
         if self.unet.training and torch.is_grad_enabled():
-            self.traced.append(output)
+            if torch.compiler.is_compiling():
+                self.computed.append(bottleneck_excess(output, self.limit))
+            else:
+                self.traced.append(output)
 
     def take(self) -> torch.Tensor | None:
         """The penalty of the tensors traced since the last call (``None`` when nothing was
         traced; 0 when nothing exceeds the limit), then reset."""
         traced, self.traced = self.traced, []
+        computed, self.computed = self.computed, []
+        if computed:
+            return torch.stack(computed).sum()
         if not traced:
             return None
         # ``aminmax`` is one pass (an inf-norm of a bf16 tensor ran 17× slower on the CPU).
@@ -232,9 +244,14 @@ def exemplar_targets(maps, light, view, idx):
 class TrainStep(nn.Module):
     """Forward of one training step (so DDP sees a single ``forward``): input → sampled log radiance."""
 
-    def __init__(self, model: NamModel, straight_through: bool = True, shared_geometry: bool = False):
+    def __init__(
+        self, model: NamModel, straight_through: bool = True, shared_geometry: bool = False, compile_unet: bool = False
+    ):
         super().__init__()
         self.model = model
+        #: ``train --compile``: the U-Net through ``torch.compile``, one static graph per crop size
+        #: (a bound method, so the module's state_dict keys stay as they are).
+        self.estimate = torch.compile(model.estimate, dynamic=False) if compile_unet else model.estimate
         #: Unscaled gradient through the final LeakyReLU(0.001) (see model.RenderMLP); without it
         #: the output dies within a few steps. ``False`` only for before/after experiments.
         self.straight_through = straight_through
@@ -244,7 +261,7 @@ class TrainStep(nn.Module):
         self.shared_geometry = shared_geometry
 
     def forward(self, net_input, k, frac, sel_gen, maps, light, view):
-        params = self.model.estimate(net_input)
+        params = self.estimate(net_input)
         #: The step's parameter maps, kept for the latent regression (``train --latent-weight``).
         self.last_params = params
         b, _, h, w = params.shape
@@ -487,6 +504,12 @@ def parse_args(argv=None):
     ap.add_argument("--val-materials", type=int, default=6)
     ap.add_argument("--log-every", type=int, default=10)
     ap.add_argument(
+        "--compile",
+        action="store_true",
+        help="run the U-Net's training forward and backward through torch.compile (one static graph per "
+        "crop size, compiled on the first step at that size: minutes on a CPU; validation stays eager)",
+    )
+    ap.add_argument(
         "--profile-steps",
         type=int,
         default=0,
@@ -659,7 +682,12 @@ def train(args) -> dict:
         model.nd_enc.requires_grad_(False)
         model.render.requires_grad_(False)
     bank = materials.MaterialBank("train", Path(args.materials_root)) if args.real_frac > 0 else None
-    trainer = TrainStep(model, straight_through=not args.no_straight_through, shared_geometry=args.shared_geometry)
+    trainer = TrainStep(
+        model,
+        straight_through=not args.no_straight_through,
+        shared_geometry=args.shared_geometry,
+        compile_unet=args.compile,
+    )
     step_module: nn.Module = trainer
     activations = ActivationExcess(model.est, args.activation_limit) if args.activation_limit else None
     if distributed:

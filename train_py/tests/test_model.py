@@ -10,7 +10,7 @@ from safetensors.torch import load_file
 
 from train_py import golden
 from train_py.export import fold_state_dict, load_model, read_config, save_model, unfold_model
-from train_py.model import ModelConfig, NamModel, positional_encoding
+from train_py.model import ModelConfig, NamModel, positional_encoding, replicate_pad_by_cat
 
 from .conftest import FIXTURES
 
@@ -57,6 +57,25 @@ def test_folded_state_dict_names_and_shapes_follow_format_md():
     assert sd["render.l0.weight"].shape == (128, 96)
     assert sd["render.l6.weight"].shape == (3, 64)
     assert not any("running" in k or "num_batches" in k for k in sd)
+
+
+@pytest.mark.parametrize("pad", [(1, 1, 1, 1), (3, 3, 3, 3), (0, 5, 0, 2)])
+@pytest.mark.parametrize("channels_last", [False, True])
+def test_replicate_pad_by_cat_equals_torch_replicate_pad_with_its_gradient(pad, channels_last):
+    g = torch.Generator().manual_seed(5)
+    x = torch.randn(2, 3, 6, 7, generator=g)
+    if channels_last:
+        x = x.contiguous(memory_format=torch.channels_last)
+    a = x.clone().requires_grad_(True)
+    b = x.clone().requires_grad_(True)
+    want = torch.nn.functional.pad(a, pad, mode="replicate")
+    got = replicate_pad_by_cat(b, pad)
+    assert torch.equal(got, want)
+    up = torch.randn(want.shape, generator=g)
+    (want * up).sum().backward()
+    (got * up).sum().backward()
+    # Each input pixel's gradient sums the same (up to 3 × 5 + 1) terms, in another order.
+    torch.testing.assert_close(b.grad, a.grad, rtol=1e-6, atol=1e-6)
 
 
 def test_positional_encoding_order_and_exact_range_reduction():

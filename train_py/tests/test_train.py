@@ -10,7 +10,7 @@ import torch
 from train_py import ggx, protocols
 from train_py.evaluate import evaluate_protocols, ssim
 from train_py.export import fold_state_dict, freeze_batchnorm, save_model, unfold_model
-from train_py.model import CONFIGS, NamModel
+from train_py.model import CONFIGS, Conv, NamModel
 from train_py.train import (
     ActivationExcess,
     MapProbe,
@@ -447,3 +447,26 @@ def test_activation_penalty_builds_its_graph_only_where_a_tensor_exceeds_the_lim
     want = sum(torch.relu(t.detach().float().abs() - limit).mean() / limit for t in traced)
     got = penalty.take()
     torch.testing.assert_close(got, want, rtol=1e-5, atol=0)
+
+
+def test_activation_penalty_inside_a_compiled_graph_sums_and_differentiates_the_same():
+    # Two bias-free convs stand in for the U-Net (a whole one takes minutes to compile here).
+    torch.manual_seed(2)
+    net = torch.nn.Sequential(Conv(4, 8, 3), Conv(8, 8, 3)).train()
+    x = torch.rand(2, 4, 12, 12) * 50
+    eager = ActivationExcess(net, 20.0)
+    net(x)
+    want = eager.take()
+    want.backward()
+    want_grads = [p.grad.clone() for p in net.parameters()]
+    net.zero_grad()
+    compiled = ActivationExcess(net, 20.0)
+    torch.compile(net, dynamic=False)(x)
+    assert not compiled.traced and len(compiled.computed) == 2  # one penalty per conv, in the graph
+    eager.take()  # its hooks ran in the graph too
+    got = compiled.take()
+    assert compiled.take() is None
+    torch.testing.assert_close(got, want.detach(), rtol=1e-5, atol=0)
+    got.backward()
+    for p, w in zip(net.parameters(), want_grads, strict=True):
+        torch.testing.assert_close(p.grad, w, rtol=1e-4, atol=1e-6)
