@@ -123,9 +123,15 @@ fn glyph(c: char) -> [u8; 7] {
         ']' => [0x0E, 0x02, 0x02, 0x02, 0x02, 0x02, 0x0E],
         '#' => [0x0A, 0x0A, 0x1F, 0x0A, 0x1F, 0x0A, 0x0A],
         '*' => [0, 0x04, 0x15, 0x0E, 0x15, 0x04, 0],
-        _ => [0x0E, 0x11, 0x01, 0x02, 0x04, 0, 0x04],
+        '≤' => [0x02, 0x04, 0x08, 0x04, 0x02, 0, 0x0E],
+        '≥' => [0x08, 0x04, 0x02, 0x04, 0x08, 0, 0x0E],
+        '°' => [0x0C, 0x12, 0x12, 0x0C, 0, 0, 0],
+        _ => UNKNOWN,
     }
 }
+
+/// The glyph of a character the font lacks: a question mark.
+const UNKNOWN: [u8; 7] = [0x0E, 0x11, 0x01, 0x02, 0x04, 0, 0x04];
 
 /// Maps text to the font's repertoire: upper case, a few typographic characters replaced.
 fn fold(text: &str) -> String {
@@ -369,6 +375,18 @@ mod tests {
         assert_eq!(*img.get_pixel(4, 0), INK);
         assert_eq!(*img.get_pixel(0, 0), BG);
         assert_eq!(text_width("ab·"), 3 * ADVANCE);
+    }
+
+    #[test]
+    fn every_character_of_the_report_labels_has_a_glyph() {
+        // The report's method names, specialisations and axis titles (report.rs, methods.rs).
+        let text =
+            "default · CPU fast · f32 · ≤ 1° per node (ND_enc once) 64² × 8 µs ≥ — – → [#*%]:/=_";
+        let unknown: Vec<char> = fold(text)
+            .chars()
+            .filter(|&c| glyph(c) == UNKNOWN)
+            .collect();
+        assert!(unknown.is_empty(), "no glyph for {unknown:?}");
     }
 
     #[test]
