@@ -58,3 +58,23 @@ pub(crate) fn filled(v: &mut Vec<Line>, n: usize, fill: u32) -> &mut [u32] {
     v.resize(n.div_ceil(LINE_WORDS), Line([fill; LINE_WORDS]));
     &mut words_mut(v)[..n]
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn filled_buffers_start_on_a_line_and_fill_whole_lines() {
+        let mut v = Vec::new();
+        for n in [1, 15, 16, 17, 1000] {
+            let w = filled(&mut v, n, 7);
+            assert_eq!(w.len(), n);
+            assert_eq!(w.as_ptr() as usize % 64, 0, "{n} words");
+            w[n - 1] = 9;
+            assert_eq!(v.len(), n.div_ceil(LINE_WORDS));
+            let all = words(&v);
+            assert_eq!(all.len(), v.len() * LINE_WORDS);
+            assert!(all[n..].iter().all(|&x| x == 7) && all[n - 1] == 9);
+        }
+    }
+}
