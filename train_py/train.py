@@ -120,10 +120,10 @@ class ActivationExcess:
     that do: :meth:`take` reads every traced tensor's largest magnitude first (one reduction each,
     outside autograd, and one read-back for all of them). Building it for every tensor made a
     CPU training step ~40% slower, and on a GPU it launched ~700 more kernels a step. Under
-    ``train --compile`` the penalty is built for every tensor instead, inside the compiled graph:
-    there it fuses into the kernels that write the tensors, where returning the tensors for
-    :meth:`take` would keep each one in memory (the compiled U-Net's forward and backward took
-    1.6× as long with them)."""
+    ``train --compile`` the penalty is built for every tensor instead, inside the compiled graph,
+    where returning the tensors for :meth:`take` would keep each one in memory (the compiled
+    U-Net's forward and backward at batch 8, 96²: 0.46 s returning them, 0.41 s with the penalty
+    in the graph, 0.285 s without a penalty; eager 0.57 s)."""
 
     def __init__(self, unet: nn.Module, limit: float):
         self.unet = unet
