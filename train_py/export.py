@@ -133,11 +133,19 @@ def load_model(path: str | Path, device: str = "cpu") -> NamModel:
     return model.to(device).eval()
 
 
-def load_checkpoint(path: str | Path) -> tuple[NamModel, dict]:
-    """Unfolded training model (eval mode) and the raw checkpoint dict."""
+def load_checkpoint(path: str | Path, averaged: bool = False) -> tuple[NamModel, dict]:
+    """Unfolded training model (eval mode) and the raw checkpoint dict; ``averaged``: the run's
+    moving average of the weights (``train --weight-ema``) instead of its last weights."""
     ckpt = torch.load(str(path), map_location="cpu", weights_only=False)
     model = NamModel(ModelConfig(**ckpt["config"]), folded=False)
-    model.load_state_dict(ckpt["model"])
+    if averaged:
+        if "averaged" not in ckpt:
+            raise SystemExit(f"{path}: no averaged weights (the run had no --weight-ema)")
+        # AveragedModel's state: the wrapped model's under "module." plus its update count.
+        avg = ckpt["averaged"]
+        model.load_state_dict({k.removeprefix("module."): v for k, v in avg.items() if k.startswith("module.")})
+    else:
+        model.load_state_dict(ckpt["model"])
     return model.eval(), ckpt
 
 
@@ -146,9 +154,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("checkpoint")
     ap.add_argument("-o", "--output", required=True)
     ap.add_argument("--dtype", choices=sorted(DTYPES), default="f32")
+    ap.add_argument(
+        "--averaged", action="store_true", help="export the moving average of the weights (train --weight-ema)"
+    )
     args = ap.parse_args(argv)
-    model, ckpt = load_checkpoint(args.checkpoint)
+    model, ckpt = load_checkpoint(args.checkpoint, args.averaged)
     extra = {"train": {k: ckpt[k] for k in ("step", "loss", "minutes") if k in ckpt}}
+    if args.averaged:
+        extra["train"]["weight_ema"] = True
     save_model(fold_state_dict(model), model.config, args.output, args.dtype, extra)
     size = Path(args.output).stat().st_size
     print(f"wrote {args.output} ({size / 1e6:.2f} MB, {args.dtype}, width {model.config.width})")

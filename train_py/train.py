@@ -31,6 +31,7 @@ import torch.distributed as dist
 import torch.nn.functional as F
 import torch.utils.data
 from torch import nn
+from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from . import capture, gen, ggx, materials, protocols
 from .evaluate import evaluate_protocols
@@ -450,11 +451,30 @@ def lr_at(progress: float, lr: float, lr_final: float, warmup: float = 0.02) -> 
     return lr_final + 0.5 * (lr - lr_final) * (1 + math.cos(math.pi * t))
 
 
-def save_checkpoint(path: Path, model: NamModel, opt, state: dict, probe: nn.Module | None = None) -> None:
+def weight_average(model: NamModel, decay: float) -> AveragedModel | None:
+    """``train --weight-ema``: an exponential moving average of ``model``'s weights (Polyak
+    averaging; torch's ``AveragedModel``), updated after every optimizer step; ``None`` when off."""
+    if not decay:
+        return None
+    if not 0.0 < decay < 1.0:
+        raise SystemExit(f"--weight-ema {decay}: the decay must lie in (0, 1)")
+    return AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(decay), use_buffers=True)
+
+
+def save_checkpoint(
+    path: Path,
+    model: NamModel,
+    opt,
+    state: dict,
+    probe: nn.Module | None = None,
+    averaged: AveragedModel | None = None,
+) -> None:
     tmp = path.with_suffix(".tmp")
     saved = {"config": model.config.as_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(), **state}
     if probe is not None:
         saved["probe"] = probe.state_dict()
+    if averaged is not None:
+        saved["averaged"] = averaged.state_dict()
     torch.save(saved, tmp)
     os.replace(tmp, path)
 
@@ -517,6 +537,13 @@ def parse_args(argv=None):
         "operators, by host and by device time, to OUT/profile.txt (0: off)",
     )
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast for the matmuls")
+    ap.add_argument(
+        "--weight-ema",
+        type=float,
+        default=0.0,
+        help="also keep an exponential moving average of the weights with this decay per step (e.g. "
+        "0.998: a horizon of ~500 steps), saved in the checkpoint for `export --averaged` (0: off)",
+    )
     ap.add_argument(
         "--identity-frac",
         type=float,
@@ -674,6 +701,12 @@ def train(args) -> dict:
         state["frozen_bn"] = bool(init.get("frozen_bn", False))
         if rank == 0:
             print(f"initialised from {args.init_from}", flush=True)
+    averaged = weight_average(model, args.weight_ema)
+    if args.resume and ckpt_path.exists():
+        if (averaged is not None) != ("averaged" in ckpt):
+            raise SystemExit(f"--resume {ckpt_path}: --weight-ema must be given exactly when the run had it")
+        if averaged is not None:
+            averaged.load_state_dict(ckpt["averaged"])
     # A resumed run's checkpoint already holds the decoder; it only needs E.
     encoder = load_decoder(args.decoder, None if state["step"] else model).to(device) if args.decoder else None
     if args.latent_weight and encoder is None:
@@ -792,6 +825,8 @@ def train(args) -> dict:
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
+        if averaged is not None:
+            averaged.update_parameters(model)
         step += 1
         ema = loss.detach() if ema is None else 0.98 * ema + 0.02 * loss.detach()
         if step % args.log_every == 0 or step == 1:
@@ -808,12 +843,12 @@ def train(args) -> dict:
             emit(f"val   {step:6d}  " + "  ".join(f"{k} {v:.4f}" for k, v in res.items()))
         if rank == 0 and time.time() - last_ckpt > 60 * args.ckpt_minutes:
             state["loss"] = float(ema)
-            save_checkpoint(ckpt_path, model, opt, state, probe)
+            save_checkpoint(ckpt_path, model, opt, state, probe, averaged)
             last_ckpt = time.time()
     if rank == 0:
         state["minutes"] = state["elapsed"] / 60
         state["loss"] = None if ema is None else float(ema)
-        save_checkpoint(ckpt_path, model, opt, state, probe)
+        save_checkpoint(ckpt_path, model, opt, state, probe, averaged)
         emit(
             f"done: {step} steps, {state['elapsed'] / 60:.1f} min ({state['cpu'] / 60:.1f} CPU-min), "
             f"ema loss {state['loss']:.4f}; wrote {ckpt_path}"

@@ -9,7 +9,7 @@ import torch
 
 from train_py import ggx, protocols
 from train_py.evaluate import evaluate_protocols, ssim
-from train_py.export import fold_state_dict, freeze_batchnorm, save_model, unfold_model
+from train_py.export import fold_state_dict, freeze_batchnorm, load_checkpoint, load_model, save_model, unfold_model
 from train_py.model import CONFIGS, Conv, NamModel
 from train_py.train import (
     ActivationExcess,
@@ -27,6 +27,7 @@ from train_py.train import (
     select_pixels,
     select_shared_pixels,
     specular_share,
+    weight_average,
     weighted_mean,
     with_input_skip,
 )
@@ -470,3 +471,39 @@ def test_activation_penalty_inside_a_compiled_graph_sums_and_differentiates_the_
     got.backward()
     for p, w in zip(net.parameters(), want_grads, strict=True):
         torch.testing.assert_close(p.grad, w, rtol=1e-4, atol=1e-6)
+
+
+def test_weight_ema_averages_the_trajectory_and_exports_and_resumes_only_with_the_flag(tmp_path):
+    # In process: the first update copies the weights, each later one moves d of the way back.
+    m = NamModel(CONFIGS["tiny"])
+    avg = weight_average(m, 0.75)
+    w = m.render.l1.weight
+    for value in (1.0, 3.0, -2.0):
+        with torch.no_grad():
+            w.fill_(value)
+        avg.update_parameters(m)
+    expected = 0.75 * (0.75 * 1.0 + 0.25 * 3.0) + 0.25 * -2.0
+    torch.testing.assert_close(avg.module.render.l1.weight, torch.full_like(w, expected))
+    assert weight_average(m, 0.0) is None
+    # A run keeps the average in its checkpoint; export --averaged writes it; resuming needs the flag.
+    cmd = [sys.executable, "-m", "train_py.train", "--config", "tiny", "--steps", "3", "--size", "32"]
+    cmd += ["--batch", "2", "--outputs", "2", "--val-every", "0", "--threads", "1", "--out", str(tmp_path)]
+    subprocess.run([*cmd, "--weight-ema", "0.9"], cwd=REPO, check=True, capture_output=True, timeout=120)
+    last, _ = load_checkpoint(tmp_path / "ckpt.pt")
+    averaged, _ = load_checkpoint(tmp_path / "ckpt.pt", averaged=True)
+    w_last, w_avg = last.render.l1.weight, averaged.render.l1.weight
+    assert not torch.equal(w_last, w_avg) and torch.isfinite(w_avg).all()
+    out = tmp_path / "avg.safetensors"
+    subprocess.run(
+        [sys.executable, "-m", "train_py.export", str(tmp_path / "ckpt.pt"), "-o", str(out), "--averaged"],
+        cwd=REPO,
+        check=True,
+        capture_output=True,
+        timeout=120,
+    )
+    torch.testing.assert_close(load_model(out).render.l1.weight, w_avg)
+    cmd[6] = "4"
+    again = subprocess.run([*cmd, "--resume"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert again.returncode != 0 and "--weight-ema" in again.stderr
+    subprocess.run([*cmd, "--resume", "--weight-ema", "0.9"], cwd=REPO, check=True, capture_output=True, timeout=120)
+    assert torch.load(tmp_path / "ckpt.pt", weights_only=False)["step"] == 4
