@@ -16,6 +16,7 @@ from pathlib import Path
 import torch
 
 from .export import DTYPES, fold_state_dict, load_model, read_config, save_model
+from .model import ModelConfig
 
 
 def average_models(paths: list[str | Path]) -> tuple[dict[str, torch.Tensor], dict]:
@@ -42,9 +43,8 @@ def main(argv: list[str] | None = None) -> None:
         mean, cfg = average_models(args.models)
     except ValueError as e:
         raise SystemExit(f"train_py.average: {e}") from None
-    model = load_model(args.models[0])
     extra = {"train": {**cfg.get("train", {}), "averaged_from": [Path(p).name for p in args.models]}}
-    save_model(mean, model.config, args.output, args.dtype, extra)
+    save_model(mean, ModelConfig.from_json_dict(cfg), args.output, args.dtype, extra)
     print(f"wrote {args.output}: the mean of {len(args.models)} models ({args.dtype})")
 
 
