@@ -121,9 +121,11 @@ def evaluate_maps(
     reflect_k: int = 8,
     device: str = "cpu",
     protocol_names: tuple[str, ...] = protocols.PROTOCOLS,
+    keep_clipped: bool = False,
 ) -> dict[str, dict[str, dict[str, float]]]:
     """As :func:`evaluate_protocols` for ``count`` materials given as ``(seed, maps [1, H, W, ...])``;
-    ``seed`` picks the light/view pairs."""
+    ``seed`` picks the light/view pairs. ``keep_clipped``: the network's own params where the
+    capture clipped (``NamModel.estimate_photo``)."""
     counts = {"reflect": reflect_k, "identity": 1, "hemisphere": hemisphere_k}
     sums: dict[str, dict[str, dict[str, float]]] = {}
     for p in protocol_names:
@@ -135,7 +137,7 @@ def evaluate_maps(
         params = None
         if model is not None:
             with torch.no_grad():
-                params = model.estimate(ggx.network_input(photo, model.config.log_mode))
+                params = model.estimate_photo(photo, fill=not keep_clipped)
         for p in protocol_names:
             light, view = protocols.seeded_pairs(p, counts[p], pair_seed(seed, p))
             light, view = light.float().to(device), view.float().to(device)
@@ -194,6 +196,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--hemisphere", type=int, default=128)
     ap.add_argument("--reflect", type=int, default=8)
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument(
+        "--keep-clipped", action="store_true", help="the network's own params where the capture clipped (not filled)"
+    )
     ap.add_argument("-o", "--output", help="write the Markdown table here")
     args = ap.parse_args(argv)
     if args.threads:
@@ -206,12 +211,12 @@ def main(argv: list[str] | None = None) -> None:
         size = args.size or 128
         files = materials.list_files("test")[: args.materials]
         sets = ((EVAL_SEED + i, materials.load_maps(f, size)) for i, f in enumerate(files))
-        res = evaluate_maps(model, sets, len(files), args.hemisphere, args.reflect)
+        res = evaluate_maps(model, sets, len(files), args.hemisphere, args.reflect, keep_clipped=args.keep_clipped)
         what = f"{len(files)} real CC0 SVBRDFs of materials/test (never trained on) at {size}²"
     else:
         sets = list(heldout_sets(args.materials, args.size))
         size = sets[0][1]["roughness"].shape[-1]
-        res = evaluate_maps(model, sets, len(sets), args.hemisphere, args.reflect)
+        res = evaluate_maps(model, sets, len(sets), args.hemisphere, args.reflect, keep_clipped=args.keep_clipped)
         seeds = [seed for seed, _ in sets]
         what = f"{len(sets)} held-out procedural SVBRDFs (assets/heldout, seeds {seeds[0]}..{seeds[-1]}) at {size}²"
     note = (
@@ -220,7 +225,9 @@ def main(argv: list[str] | None = None) -> None:
         f"light/view pairs per material. Model: `{args.model}`. "
         f"Command: `python -m train_py.evaluate --model {args.model} --set {args.set} "
         + (f"--materials {args.materials} " if args.materials else "")
-        + f"--size {size} --hemisphere {args.hemisphere}` ({time.time() - t0:.0f} s)."
+        + f"--size {size} --hemisphere {args.hemisphere}"
+        + (" --keep-clipped" if args.keep_clipped else "")
+        + f"` ({time.time() - t0:.0f} s)."
     )
     md = markdown(res, "Evaluation: log-L1 and SSIM by protocol", note)
     print(md)

@@ -165,6 +165,7 @@ def network_golden(model: NamModel, seed: int) -> dict[str, torch.Tensor]:
     with torch.no_grad():
         net_in = ggx.network_input(photo.double()[None], model.config.log_mode)
         params = m64.estimate(net_in)[0]
+        params_filled = m64.estimate_photo(photo.double()[None])[0]
         r_params, r_dirs = query_set(gen, params)
         r_params, r_dirs = r_params.float().double(), r_dirs.float().double()
         r_encoded = positional_encoding(r_dirs)
@@ -175,6 +176,7 @@ def network_golden(model: NamModel, seed: int) -> dict[str, torch.Tensor]:
         "photo": photo,
         "input": net_in[0],
         "params": params,
+        "params_filled": params_filled,
         "r_params": r_params,
         "r_dirs": r_dirs,
         "r_encoded": r_encoded,

@@ -148,9 +148,11 @@ def score(pred: torch.Tensor, truth: torch.Tensor, clipped: torch.Tensor) -> tup
     return dist, ratio
 
 
-def run(model, size: int = REFERENCE_SIZE, count: int | None = None) -> dict[str, dict[str, float]]:
+def run(
+    model, size: int = REFERENCE_SIZE, count: int | None = None, keep_clipped: bool = False
+) -> dict[str, dict[str, float]]:
     """Pass rates and medians for the model (if given) and the diffuse fit, over the first ``count``
-    test sets (default all)."""
+    test sets (default all); ``keep_clipped``: the network's own params where the capture clipped."""
     res: dict[str, list[tuple[float, float | None]]] = (
         {"model": [], "diffuse fit": []} if model else {"diffuse fit": []}
     )
@@ -161,7 +163,7 @@ def run(model, size: int = REFERENCE_SIZE, count: int | None = None) -> dict[str
         params = None
         if model is not None:
             with torch.no_grad():
-                params = model.estimate(ggx.network_input(photo, model.config.log_mode))
+                params = model.estimate_photo(photo, fill=not keep_clipped)
         for light, truth in cases:
             wi, wo, _ = ggx.directions(light, view, size, size)
             res["diffuse fit"].append(score(diffuse_fit(photo, wi)[0, 0], truth, clipped))
@@ -185,7 +187,7 @@ def run(model, size: int = REFERENCE_SIZE, count: int | None = None) -> dict[str
     return out
 
 
-def markdown(res: dict, model_path: str | None, size: int, seconds: float) -> str:
+def markdown(res: dict, model_path: str | None, size: int, seconds: float, keep_clipped: bool = False) -> str:
     sets = res["diffuse fit"]["cases"] // len(MOVED_LIGHTS)
     lines = [
         "# Highlight test: glossy variants of materials/test, light moved from the camera",
@@ -194,7 +196,8 @@ def markdown(res: dict, model_path: str | None, size: int, seconds: float) -> st
         f"{size}², 28° ideal 8-bit capture, {len(MOVED_LIGHTS)} moved lights each. Peak: blurred (σ {PEAK_SIGMA} px) "
         f"luminance maximum within {PEAK_TOLERANCE_PX:.0f} px of the GGX truth's. Clipped: mean radiance over "
         f"the pixels the capture clipped within {CLIPPED_RATIO[0]}–{CLIPPED_RATIO[1]}× the truth. Model: "
-        f"`{model_path}`. Command: `python -m train_py.highlights --model {model_path} --size {size}` "
+        f"`{model_path}`. Command: `python -m train_py.highlights --model {model_path} --size {size}"
+        f"{' --keep-clipped' if keep_clipped else ''}` "
         f"({seconds:.0f} s). Peak errors are in pixels of a {REFERENCE_SIZE}² image.",
         "",
         "| method | peak within 10 px ↑ | median peak error (px) | clipped within 0.5–2× ↑ | median clipped ratio |",
@@ -215,6 +218,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--materials", type=int, default=None, help="only the first N test sets (quick checks)")
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--oracle", action="store_true", help="score perturbed true maps instead of a model")
+    ap.add_argument(
+        "--keep-clipped", action="store_true", help="the network's own params where the capture clipped (not filled)"
+    )
     ap.add_argument("-o", "--output")
     args = ap.parse_args(argv)
     if args.threads:
@@ -231,8 +237,8 @@ def main(argv: list[str] | None = None) -> None:
 
     model = load_model(args.model) if args.model else None
     t0 = time.time()
-    res = run(model, args.size, args.materials)
-    md = markdown(res, args.model, args.size, time.time() - t0)
+    res = run(model, args.size, args.materials, args.keep_clipped)
+    md = markdown(res, args.model, args.size, time.time() - t0, args.keep_clipped)
     print(md)
     if args.output:
         Path(args.output).write_text(md)

@@ -16,6 +16,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from . import ggx
+from .clip_fill import fill_clipped
 from .ggx import normalize
 
 NORM_EPS = 1e-5
@@ -396,6 +398,19 @@ class NamModel(nn.Module):
     def estimate(self, net_input: torch.Tensor) -> torch.Tensor:
         """``[B, 4, H, W]`` network input → params ``[B, 64, H, W]``."""
         return self.est(net_input)
+
+    def estimate_photo(
+        self, photo: torch.Tensor, distance: float = ggx.CAPTURE_DISTANCE, fill: bool = True
+    ) -> torch.Tensor:
+        """Params ``[B, 64, H, W]`` of linear photos ``[B, H, W, 3]`` taken from ``(0, 0, distance)``,
+        as the runtime estimates them: network input, U-Net, then (``fill``, LDR models: their input
+        saturates where the photo clipped) the clipped pixels' params filled from the pixels around
+        them (``clip_fill``)."""
+        params = self.estimate(ggx.network_input(photo, self.config.log_mode, distance))
+        if fill and self.config.log_mode == "ldr":
+            # Where the LDR input saturates (for an 8-bit photo: ggx.clipped), as the runtime does.
+            params = fill_clipped(params, (photo >= ggx.LDR_MAX).any(-1))
+        return params
 
     def render_log(self, params: torch.Tensor, dirs: torch.Tensor, straight_through: bool = False) -> torch.Tensor:
         """Per-query log radiance: params ``[N, 64]``, dirs ``[N, 9]`` → ``[N, 3]``.

@@ -42,7 +42,7 @@ def relight(model: NamModel, photo: torch.Tensor, light, view, distance: float =
     under a point light and view position."""
     h, w = photo.shape[1:3]
     with torch.no_grad():
-        params = model.estimate(ggx.network_input(photo, model.config.log_mode, distance))
+        params = model.estimate_photo(photo, distance)
         lt = torch.tensor(light, dtype=torch.float32)[None]
         vw = torch.tensor(view, dtype=torch.float32)[None]
         wi, wo, _ = ggx.directions(lt, vw, h, w)

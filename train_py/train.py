@@ -33,7 +33,7 @@ import torch.utils.data
 from torch import nn
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-from . import capture, gen, ggx, materials, protocols
+from . import capture, clip_fill, gen, ggx, materials, protocols
 from .evaluate import evaluate_protocols
 from .export import freeze_batchnorm, unfold_model
 from .model import (
@@ -218,12 +218,16 @@ def weighted_mean(err: torch.Tensor, weights: torch.Tensor | None) -> torch.Tens
     return (err * weights.unsqueeze(-1)).sum() / (weights.sum() * err.shape[-1])
 
 
+def input_clipped(net_input: torch.Tensor) -> torch.Tensor:
+    """Where the capture photo clipped ``[B, H, W]``: the network input's log RGB decoded back to
+    the 8-bit photo's linear values."""
+    return ggx.clipped(torch.expm1(net_input[:, :3].float()).permute(0, 2, 3, 1))
+
+
 def capture_clipped(net_input: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-    """Whether the capture photo clipped at the selected pixels ``idx`` ``[B, K, n]``: the network
-    input's log RGB decoded back to the 8-bit photo's linear values."""
-    b = net_input.shape[0]
-    photo = torch.expm1(net_input[:, :3].float()).permute(0, 2, 3, 1).reshape(b, -1, 3)
-    return gather_rows(ggx.clipped(photo).unsqueeze(-1), idx)[..., 0]
+    """Whether the capture photo clipped at the selected pixels ``idx`` ``[B, K, n]``."""
+    clipped = input_clipped(net_input).reshape(net_input.shape[0], -1, 1)
+    return gather_rows(clipped, idx)[..., 0]
 
 
 def exemplar_targets(maps, light, view, idx):
@@ -246,7 +250,12 @@ class TrainStep(nn.Module):
     """Forward of one training step (so DDP sees a single ``forward``): input → sampled log radiance."""
 
     def __init__(
-        self, model: NamModel, straight_through: bool = True, shared_geometry: bool = False, compile_unet: bool = False
+        self,
+        model: NamModel,
+        straight_through: bool = True,
+        shared_geometry: bool = False,
+        compile_unet: bool = False,
+        fill_clipped: bool = False,
     ):
         super().__init__()
         self.model = model
@@ -260,9 +269,14 @@ class TrainStep(nn.Module):
         #: pixel subset, so ND_enc — 86% of the per-query multiply-adds — runs once per exemplar
         #: pixel instead of once per material.
         self.shared_geometry = shared_geometry
+        #: ``train --fill-clipped``: the params of the pixels the capture clipped are filled from the
+        #: others (``clip_fill``, as the runtime does) before rendering.
+        self.fill_clipped = fill_clipped
 
     def forward(self, net_input, k, frac, sel_gen, maps, light, view):
         params = self.estimate(net_input)
+        if self.fill_clipped:
+            params = clip_fill.fill_clipped(params, input_clipped(net_input))
         #: The step's parameter maps, kept for the latent regression (``train --latent-weight``).
         self.last_params = params
         b, _, h, w = params.shape
@@ -640,6 +654,13 @@ def parse_args(argv=None):
         "training-only probe (MapProbe; not exported, not in the paper; 0: off)",
     )
     ap.add_argument(
+        "--fill-clipped",
+        action="store_true",
+        help="render the clipped pixels of a capture from params filled from the other pixels "
+        "(clip_fill, as the runtime estimates), so the pixels around a blown-out highlight learn "
+        "params that also relight it (not in the paper)",
+    )
+    ap.add_argument(
         "--no-straight-through",
         action="store_true",
         help="true LeakyReLU(0.001) gradient at the output (dies early; for comparisons only)",
@@ -720,6 +741,7 @@ def train(args) -> dict:
         straight_through=not args.no_straight_through,
         shared_geometry=args.shared_geometry,
         compile_unet=args.compile,
+        fill_clipped=args.fill_clipped,
     )
     step_module: nn.Module = trainer
     activations = ActivationExcess(model.est, args.activation_limit) if args.activation_limit else None

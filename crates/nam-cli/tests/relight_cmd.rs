@@ -444,7 +444,7 @@ fn resize_sets_the_material_size_and_is_refused_for_materials() {
             s(&out),
         ],
         &out,
-        "--resize apply to photos",
+        "apply to photos, not to a saved material",
     );
     expect_failure(
         &[
@@ -1070,5 +1070,57 @@ fn interpolate_is_an_opt_in_approximation_close_to_the_exact_relight() {
         ],
         &x,
         "interpolation bound",
+    );
+}
+
+#[test]
+fn keep_clipped_changes_only_a_photo_that_clipped_and_is_refused_for_materials() {
+    let dir = tmp();
+    // The example photo at 16², darkened so that no pixel clips, and with a white blob.
+    let mut img = image::open(small_photo(dir.path(), 16))
+        .unwrap_or_else(|e| panic!("{e}"))
+        .to_rgb8();
+    img.pixels_mut().for_each(|px| px.0 = px.0.map(|v| v / 2));
+    let plain = dir.path().join("plain.png");
+    img.save(&plain).unwrap_or_else(|e| panic!("{e}"));
+    for (x, y, px) in img.enumerate_pixels_mut() {
+        if (5..9).contains(&x) && (6..10).contains(&y) {
+            *px = image::Rgb([255, 255, 255]);
+        }
+    }
+    let blob = dir.path().join("blob.png");
+    img.save(&blob).unwrap_or_else(|e| panic!("{e}"));
+    let estimate = |photo: &Path, keep: bool| -> Vec<u8> {
+        let out = dir.path().join(format!("m{keep}.nam"));
+        let mut args = vec![
+            "estimate",
+            s(photo),
+            "-o",
+            s(&out),
+            "--exact",
+            "--backend",
+            "cpu",
+        ];
+        if keep {
+            args.push("--keep-clipped");
+        }
+        ok(&args);
+        std::fs::read(&out).unwrap_or_else(|e| panic!("{e}"))
+    };
+    assert_eq!(estimate(&plain, false), estimate(&plain, true));
+    assert_ne!(estimate(&blob, false), estimate(&blob, true));
+    let out = dir.path().join("r.png");
+    expect_failure(
+        &[
+            "relight",
+            s(&dir.path().join("mfalse.nam")),
+            "--keep-clipped",
+            "--light",
+            "1,1,3",
+            "-o",
+            s(&out),
+        ],
+        &out,
+        "--keep-clipped apply to photos",
     );
 }

@@ -18,7 +18,8 @@
 //! * [`reference`](mod@reference) — readable loops with f32 or f64 accumulation, the yardstick
 //!   for the fast path.
 //! * [`ParamMap::to_nam_bytes`] / [`ParamMap::from_nam_bytes`] — the `.nam` file.
-//! * [`input::network_input`] — photo (linear RGB, HWC) → the 4-channel CHW input.
+//! * [`input::network_input`] — photo (linear RGB, HWC) → the 4-channel CHW input;
+//!   [`fill_clipped`] — the params of the pixels a photo clipped, filled from the others.
 //! * [`geometry`] — pixel positions and per-pixel directions (DESIGN §3), re-exported from
 //!   `nam-ggx`, the one home of the surface frame; the networks use it in f32.
 //!
@@ -30,6 +31,7 @@
 
 mod amx;
 mod bf16;
+mod clip_fill;
 mod dense;
 pub mod encoding;
 mod error;
@@ -45,6 +47,7 @@ mod simd;
 mod unet;
 
 pub use bf16::{bf16_kernel, bf16_supported};
+pub use clip_fill::fill_clipped;
 pub use error::{ModelError, Result};
 pub use int8::int8_supported;
 pub use maps::{ParamMap, Rgb};

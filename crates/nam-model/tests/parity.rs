@@ -369,3 +369,50 @@ fn pixel_directions_match_golden_geometry_5x7() {
         assert!(worst < GEOMETRY_TOL, "{name}: {worst:e}");
     }
 }
+
+/// Clipped-pixel fill vs torch (float64): f32 sums of at most four children per level and
+/// bilinear weights, a few ulps per level over ~6 levels.
+const CLIP_FILL_TOL: f32 = 1e-5;
+
+#[test]
+fn clip_fill_matches_torch_golden() {
+    for golden in [
+        "net_tiny_golden.safetensors",
+        "net_default_golden.safetensors",
+    ] {
+        let g = TensorFile::from_file(fixtures().join(golden)).expect("golden is committed");
+        check_clip_fill(&g);
+    }
+}
+
+fn check_clip_fill(g: &TensorFile) {
+    let shape = g.tensors()["photo"].shape().to_vec();
+    let (h, w) = (shape[0], shape[1]);
+    let photo = g.get("photo", &[h, w, 3]).expect("photo");
+    let clipped: Vec<bool> = photo
+        .chunks_exact(3)
+        .map(|px| px.iter().any(|&v| v >= nam_model::input::LDR_CLAMP))
+        .collect();
+    let n = clipped.iter().filter(|&&c| c).count();
+    assert!(
+        n > 10 && n < h * w / 2,
+        "the fixture must clip some pixels: {n}"
+    );
+    let c = 64;
+    let params = g.get("params", &[c, h, w]).expect("params");
+    let want = chw_to_hwc(
+        g.get("params_filled", &[c, h, w]).expect("params_filled"),
+        c,
+        h,
+        w,
+    );
+    let mut map = nam_model::ParamMap {
+        height: h,
+        width: w,
+        channels: c,
+        data: chw_to_hwc(params, c, h, w),
+    };
+    nam_model::fill_clipped(&mut map, &clipped).expect("fill");
+    let e = max_rel_err(&map.data, &want);
+    assert!(e < CLIP_FILL_TOL, "fill vs torch: {e:e}");
+}

@@ -72,9 +72,16 @@ impl Model {
     /// Estimates the neural material of a square flash photo: `photo` is `H×W×3`, `uint8`
     /// (sRGB-encoded, as a PNG or JPEG stores it) or `float32` (linear radiance), taken from
     /// (0, 0, d) with the flash beside the lens, d = 1/tan(fov/2) material half-widths
-    /// (`fov` in degrees; 28 is the training geometry).
-    #[pyo3(signature = (photo, fov = CAPTURE_FOV_DEG))]
-    fn estimate(&self, py: Python<'_>, photo: &Bound<'_, PyAny>, fov: f64) -> PyResult<Material> {
+    /// (`fov` in degrees; 28 is the training geometry). The params of the pixels the photo
+    /// clipped are filled from the pixels around them unless `keep_clipped`.
+    #[pyo3(signature = (photo, fov = CAPTURE_FOV_DEG, keep_clipped = false))]
+    fn estimate(
+        &self,
+        py: Python<'_>,
+        photo: &Bound<'_, PyAny>,
+        fov: f64,
+        keep_clipped: bool,
+    ) -> PyResult<Material> {
         let (h, w, pixels) = arrays::photo(photo)?;
         let model = Arc::clone(&self.inner);
         let material = py
@@ -84,7 +91,7 @@ impl Model {
                     PhotoPixels::Linear(v) => Photo::from_linear_rgb(h, w, v),
                 }?
                 .with_fov(fov)?;
-                model.estimate(&photo)
+                estimate(&model, &photo, keep_clipped)
             })
             .map_err(py_err)?;
         Ok(Material {
@@ -95,8 +102,8 @@ impl Model {
 
     /// Estimates the material of a photo file as `nam-cli estimate` does: PNG/JPEG (sRGB, EXIF
     /// orientation applied) or EXR (linear); `crop` takes the centred square of a non-square
-    /// photo, `resize` resamples it to that side first.
-    #[pyo3(signature = (path, fov = CAPTURE_FOV_DEG, crop = false, resize = None))]
+    /// photo, `resize` resamples it to that side first; `keep_clipped` as in `estimate`.
+    #[pyo3(signature = (path, fov = CAPTURE_FOV_DEG, crop = false, resize = None, keep_clipped = false))]
     fn estimate_file(
         &self,
         py: Python<'_>,
@@ -104,10 +111,14 @@ impl Model {
         fov: f64,
         crop: bool,
         resize: Option<usize>,
+        keep_clipped: bool,
     ) -> PyResult<Material> {
         let model = Arc::clone(&self.inner);
         let material = py
-            .detach(|| model.estimate(&Photo::load_resized(&path, crop, resize)?.with_fov(fov)?))
+            .detach(|| {
+                let photo = Photo::load_resized(&path, crop, resize)?.with_fov(fov)?;
+                estimate(&model, &photo, keep_clipped)
+            })
             .map_err(py_err)?;
         Ok(Material {
             inner: Arc::new(material),
@@ -172,6 +183,19 @@ impl Material {
 }
 
 /// `N×3` directions and `N×2` texture coordinates as queries.
+/// `photo`'s material, the clipped pixels' params filled unless `keep_clipped`.
+fn estimate(
+    model: &nam::NeuralModel,
+    photo: &Photo,
+    keep_clipped: bool,
+) -> nam::Result<nam::NeuralMaterial> {
+    if keep_clipped {
+        model.estimate_raw(photo)
+    } else {
+        model.estimate(photo)
+    }
+}
+
 fn queries(uv: &[[f32; 2]], wi: &[[f32; 3]], wo: &[[f32; 3]]) -> Vec<BrdfQuery> {
     uv.iter()
         .zip(wi)

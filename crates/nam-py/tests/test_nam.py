@@ -179,6 +179,20 @@ def test_float32_photos_are_linear_and_uint8_photos_srgb(model):
     assert np.abs(model.estimate(photo8, fov=45.0).params - a).max() > 1e-3
 
 
+def test_keep_clipped_keeps_the_network_params_where_the_photo_clipped(model, tmp_path):
+    from PIL import Image
+
+    photo8 = real_photo(16) // 2
+    photo8[4:8, 5:9] = 255
+    filled, kept = model.estimate(photo8).params, model.estimate(photo8, keep_clipped=True).params
+    clipped = (photo8 == 255).any(-1)
+    np.testing.assert_array_equal(filled[~clipped], kept[~clipped])
+    assert np.abs(filled[clipped] - kept[clipped]).max() > 1e-3
+    path = tmp_path / "blob.png"
+    Image.fromarray(photo8).save(path)
+    np.testing.assert_array_equal(model.estimate_file(path, keep_clipped=True).params, kept)
+
+
 @pytest.mark.parametrize(
     ("call", "error", "message"),
     [

@@ -3,8 +3,9 @@
 use crate::error::{NamError, Result};
 use crate::material::NeuralMaterial;
 use crate::photo::Photo;
-use nam_model::{Model, Precision as CpuPrecision, ProbeTime, UNet};
-use nam_weights::{ModelConfig, Weights};
+use nam_model::input::LDR_CLAMP;
+use nam_model::{Model, ParamMap, Precision as CpuPrecision, ProbeTime, UNet};
+use nam_weights::{LogMode, ModelConfig, Weights};
 use sha2::{Digest, Sha256};
 use std::path::Path;
 
@@ -256,22 +257,42 @@ impl NeuralModel {
 
     /// Estimates the neural material of a photo (runs `M_est` once), taken with the photo's
     /// field of view ([`Photo::with_fov`]; 28°, the training geometry, unless declared).
+    ///
+    /// For an LDR model the params of the pixels the photo clipped (a channel at or above
+    /// [`LDR_CLAMP`], pure white to the network, which then sees only that the radiance was at
+    /// least 1) are then replaced by an interpolation of the other pixels' params
+    /// ([`nam_model::fill_clipped`]): the network's own guess there keeps the flash highlight
+    /// baked in (relit more than 2× too bright under a moved light in 30 of the highlight test's
+    /// 64 cases, `train_py.highlights`). [`Self::estimate_raw`] keeps that guess. HDR models see
+    /// the true radiance and are never filled.
     pub fn estimate(&self, photo: &Photo) -> Result<NeuralMaterial> {
+        let mut map = self.network_params(photo)?;
+        if self.config().log_mode == LogMode::Ldr {
+            let clipped: Vec<bool> = photo.saturated(LDR_CLAMP).collect();
+            nam_model::fill_clipped(&mut map, &clipped)?;
+        }
+        NeuralMaterial::new(map, self.fingerprint.clone())
+    }
+
+    /// As [`Self::estimate`], but keeping the network's own params where the photo clipped.
+    pub fn estimate_raw(&self, photo: &Photo) -> Result<NeuralMaterial> {
+        NeuralMaterial::new(self.network_params(photo)?, self.fingerprint.clone())
+    }
+
+    /// The U-Net's param map of `photo`, on the GPU when one is attached.
+    fn network_params(&self, photo: &Photo) -> Result<ParamMap> {
         let side = photo.side();
         let input = photo.network_input(self.config().log_mode)?;
         #[cfg(feature = "gpu")]
         if let Some(res) = self.with_gpu(|net| Ok(net.estimate(&input, side, side)?)) {
-            let data = res?;
-            let map = nam_model::ParamMap {
+            return Ok(ParamMap {
                 height: side,
                 width: side,
                 channels: self.config().param_channels,
-                data,
-            };
-            return NeuralMaterial::new(map, self.fingerprint.clone());
+                data: res?,
+            });
         }
-        let map = self.cpu.unet.estimate(&input, side, side)?;
-        NeuralMaterial::new(map, self.fingerprint.clone())
+        Ok(self.cpu.unet.estimate(&input, side, side)?)
     }
 }
 

@@ -157,12 +157,16 @@ impl Photo {
     /// [`nam_model::input::LDR_CLAMP`] these are the pixels an LDR model sees as pure white:
     /// the blown-out highlight of an over-exposed photo, where the material is not visible.
     pub fn saturated_fraction(&self, level: f32) -> f64 {
-        let n = self
-            .rgb
-            .chunks_exact(3)
-            .filter(|px| px.iter().any(|&v| v >= level))
-            .count();
+        let n = self.saturated(level).filter(|&s| s).count();
         n as f64 / (self.side * self.side) as f64
+    }
+
+    /// Per pixel (row-major), whether some channel is at or above `level` (linear); see
+    /// [`Self::saturated_fraction`].
+    pub fn saturated(&self, level: f32) -> impl Iterator<Item = bool> + '_ {
+        self.rgb
+            .chunks_exact(3)
+            .map(move |px| px.iter().any(|&v| v >= level))
     }
 
     /// Resamples to `side`×`side` with a triangle (bilinear) filter on downscale and

@@ -573,3 +573,50 @@ fn nd_interpolation_is_opt_in_bounded_and_leaves_rois_and_directional_scenes_exa
         exact.data()
     );
 }
+
+/// A 16² photo of a grey material with a clipped 4×5 blob (value 1.0 in every channel).
+fn photo_with_clipped_blob() -> (Photo, Vec<bool>) {
+    let side = 16;
+    let clipped: Vec<bool> = (0..side * side)
+        .map(|p| (5..9).contains(&(p / side)) && (6..11).contains(&(p % side)))
+        .collect();
+    let rgb = clipped
+        .iter()
+        .enumerate()
+        .flat_map(|(p, &c)| {
+            let v = if c {
+                1.0
+            } else {
+                0.2 + 0.3 * ((p % 5) as f32 / 5.0)
+            };
+            [v, 0.9 * v, 0.8 * v]
+        })
+        .collect();
+    (
+        Photo::from_linear_rgb(side, side, rgb).expect("photo"),
+        clipped,
+    )
+}
+
+#[test]
+fn estimate_fills_only_the_clipped_pixels_and_estimate_raw_keeps_them() {
+    let model = tiny();
+    let (photo, clipped) = photo_with_clipped_blob();
+    let filled = model.estimate(&photo).expect("estimate");
+    let raw = model.estimate_raw(&photo).expect("raw");
+    let c = filled.params().channels;
+    for (p, &is_clipped) in clipped.iter().enumerate() {
+        let (a, b) = (
+            &filled.params().data[p * c..(p + 1) * c],
+            &raw.params().data[p * c..(p + 1) * c],
+        );
+        assert_eq!(a == b, !is_clipped, "pixel {p}");
+        assert!(a.iter().all(|v| v.is_finite()), "pixel {p}");
+    }
+    // An all-white photo has nothing to fill from: the network's own params stay.
+    let white = Photo::from_linear_rgb(8, 8, vec![1.0; 8 * 8 * 3]).expect("white");
+    assert_eq!(
+        model.estimate(&white).expect("white").params(),
+        model.estimate_raw(&white).expect("white raw").params()
+    );
+}

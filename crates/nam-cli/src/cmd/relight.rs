@@ -207,6 +207,22 @@ pub struct PhotoArgs {
     /// saved material, only for those).
     #[arg(long, value_name = "DEGREES", value_parser = parse_fov, default_value_t = CAPTURE_FOV_DEG)]
     pub fov: f64,
+    /// Keep the network's own params where the photo clipped (a channel at 1.0) instead of
+    /// filling them from the pixels around (the default: the network's guess there keeps the
+    /// flash highlight baked in, too bright under a moved light).
+    #[arg(long)]
+    pub keep_clipped: bool,
+}
+
+impl PhotoArgs {
+    /// Estimates `photo`'s material, filling the clipped pixels' params unless `--keep-clipped`.
+    pub fn estimate(&self, model: &NeuralModel, photo: &Photo) -> Result<NeuralMaterial> {
+        Ok(if self.keep_clipped {
+            model.estimate_raw(photo)?
+        } else {
+            model.estimate(photo)?
+        })
+    }
 }
 
 /// Share of saturated pixels above which `relight`/`estimate` print a note: more than the
@@ -220,8 +236,8 @@ pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Resu
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("nam"));
     if is_nam {
-        if how.crop || how.resize.is_some() {
-            bail!("--crop and --resize apply to photos, not to a saved material");
+        if how.crop || how.resize.is_some() || how.keep_clipped {
+            bail!("--crop, --resize and --keep-clipped apply to photos, not to a saved material");
         }
         let material = NeuralMaterial::load(input)?;
         material.check_model(model).with_context(|| {
@@ -234,7 +250,7 @@ pub fn load_material(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Resu
     }
     let photo = load_photo(model, input, how)?;
     crate::forecast::note_estimate_cost(model, photo.side())?;
-    Ok(model.estimate(&photo)?)
+    how.estimate(model, &photo)
 }
 
 /// Reads a photo as `how` says (crop, resize, field of view), printing notes on what the
@@ -260,8 +276,8 @@ pub fn load_photo(model: &NeuralModel, input: &Path, how: &PhotoArgs) -> Result<
         if blown > SATURATED_NOTE_ABOVE {
             eprintln!(
                 "note: {:.1}% of the pixels of {} are saturated (a channel at 1.0, pure white to \
-                 this LDR model); what lies under a blown-out highlight is guessed, so those areas \
-                 may relight poorly (a darker exposure helps)",
+                 this LDR model); what lies under a blown-out highlight is not in the photo: its \
+                 params are filled from the pixels around it (a darker exposure helps)",
                 100.0 * blown,
                 input.display()
             );

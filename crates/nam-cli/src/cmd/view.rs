@@ -58,6 +58,7 @@ pub fn run(args: &Args) -> Result<()> {
     let config = ViewerConfig {
         port: args.port,
         max_side: args.max_side,
+        keep_clipped: args.photo.keep_clipped,
     };
     let server = viewer::Server::bind(model, source, &config)?;
     let url = server.url();
@@ -85,7 +86,7 @@ fn load_source(model: &NeuralModel, path: &Path, args: &Args) -> Result<Source> 
         if args.photo.resize.is_none() {
             photo = viewer::fit(photo, args.max_side)?;
         }
-        (model.estimate(&photo)?, Some(photo))
+        (args.photo.estimate(model, &photo)?, Some(photo))
     };
     Ok(Source::new(name, material, photo, args.photo.fov))
 }

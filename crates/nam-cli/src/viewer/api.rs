@@ -373,11 +373,10 @@ fn estimate(state: &State, q: &Query<'_>, request: &mut Request) -> Result<Reply
     let ext = sniff(&bytes)
         .ok_or_else(|| Reply::error(415, format!("{name} is not a PNG, JPEG or EXR image")))?;
     let started = Instant::now();
-    let photo = decode_upload(state, &bytes, ext, fov, &name)?;
-    let material = state
-        .model
-        .estimate(&photo)
-        .map_err(|e| Reply::error(400, format!("{name}: {e}")))?;
+    let (photo, how) = decode_upload(state, &bytes, ext, fov, &name)?;
+    let material = how
+        .estimate(&state.model, &photo)
+        .map_err(|e| Reply::error(400, format!("{name}: {e:#}")))?;
     eprintln!(
         "viewer: estimated {name} ({0}×{0}) in {1:.1} s",
         photo.side(),
@@ -396,14 +395,15 @@ fn estimate(state: &State, q: &Query<'_>, request: &mut Request) -> Result<Reply
 }
 
 /// Decodes an upload through the same loader as files (centre-cropped, fitted to
-/// `--max-side`); its messages name the upload, not the temporary file.
+/// `--max-side`), with how it is estimated; its messages name the upload, not the temporary
+/// file.
 fn decode_upload(
     state: &State,
     bytes: &[u8],
     ext: &str,
     fov: f64,
     name: &str,
-) -> Result<Photo, Reply> {
+) -> Result<(Photo, PhotoArgs), Reply> {
     let internal = |e: std::io::Error| Reply::error(500, format!("staging the upload: {e}"));
     let mut file = tempfile::Builder::new()
         .prefix("nam-view-")
@@ -415,12 +415,13 @@ fn decode_upload(
         crop: true,
         resize: None,
         fov,
+        keep_clipped: state.keep_clipped,
     };
     let tmp = file.path().display().to_string();
     let photo = load_photo(&state.model, file.path(), &how)
         .and_then(|p| fit(p, state.max_side))
         .map_err(|e| Reply::error(400, format!("{e:#}").replace(&tmp, name)))?;
-    Ok(photo)
+    Ok((photo, how))
 }
 
 #[cfg(test)]

@@ -36,6 +36,8 @@ pub struct ViewerConfig {
     pub port: u16,
     /// Photos larger than this are resampled to `max_side`².
     pub max_side: usize,
+    /// Uploaded photos keep the network's own params where they clipped (`--keep-clipped`).
+    pub keep_clipped: bool,
 }
 
 /// What is being viewed: a material, with the photo it was estimated from when there is one.
@@ -118,6 +120,7 @@ struct State {
     model: NeuralModel,
     token: String,
     max_side: usize,
+    keep_clipped: bool,
     current: RwLock<Current>,
 }
 
@@ -157,6 +160,7 @@ impl Server {
             model,
             token,
             max_side: config.max_side,
+            keep_clipped: config.keep_clipped,
             current: RwLock::new(Current {
                 generation: 1,
                 source: source.map(Arc::new),

@@ -26,11 +26,20 @@ class Model:
     def info(self) -> dict[str, Any]:
         """``width``, ``parameters``, ``dtype``, ``sha256``, ``param_channels``, ``input_skip``."""
 
-    def estimate(self, photo: npt.NDArray[np.uint8] | F32, fov: float = 28.0) -> Material:
-        """Material of a square ``H×W×3`` photo: uint8 sRGB-encoded or float32 linear; ``fov`` in degrees."""
+    def estimate(
+        self, photo: npt.NDArray[np.uint8] | F32, fov: float = 28.0, keep_clipped: bool = False
+    ) -> Material:
+        """Material of a square ``H×W×3`` photo: uint8 sRGB-encoded or float32 linear; ``fov`` in degrees.
+        The params of the pixels the photo clipped are filled from the pixels around them unless
+        ``keep_clipped``."""
 
     def estimate_file(
-        self, path: str | PathLike[str], fov: float = 28.0, crop: bool = False, resize: int | None = None
+        self,
+        path: str | PathLike[str],
+        fov: float = 28.0,
+        crop: bool = False,
+        resize: int | None = None,
+        keep_clipped: bool = False,
     ) -> Material:
         """Material of a photo file (PNG/JPEG sRGB, EXR linear), as ``nam-cli estimate`` reads it."""
 
