@@ -91,7 +91,7 @@ impl Model {
                     PhotoPixels::Linear(v) => Photo::from_linear_rgb(h, w, v),
                 }?
                 .with_fov(fov)?;
-                estimate(&model, &photo, keep_clipped)
+                model.estimate_with(&photo, !keep_clipped)
             })
             .map_err(py_err)?;
         Ok(Material {
@@ -117,7 +117,7 @@ impl Model {
         let material = py
             .detach(|| {
                 let photo = Photo::load_resized(&path, crop, resize)?.with_fov(fov)?;
-                estimate(&model, &photo, keep_clipped)
+                model.estimate_with(&photo, !keep_clipped)
             })
             .map_err(py_err)?;
         Ok(Material {
@@ -183,19 +183,6 @@ impl Material {
 }
 
 /// `N×3` directions and `N×2` texture coordinates as queries.
-/// `photo`'s material, the clipped pixels' params filled unless `keep_clipped`.
-fn estimate(
-    model: &nam::NeuralModel,
-    photo: &Photo,
-    keep_clipped: bool,
-) -> nam::Result<nam::NeuralMaterial> {
-    if keep_clipped {
-        model.estimate_raw(photo)
-    } else {
-        model.estimate(photo)
-    }
-}
-
 fn queries(uv: &[[f32; 2]], wi: &[[f32; 3]], wo: &[[f32; 3]]) -> Vec<BrdfQuery> {
     uv.iter()
         .zip(wi)

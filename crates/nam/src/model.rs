@@ -263,20 +263,21 @@ impl NeuralModel {
     /// least 1) are then replaced by an interpolation of the other pixels' params
     /// ([`nam_model::fill_clipped`]): the network's own guess there keeps the flash highlight
     /// baked in (relit more than 2× too bright under a moved light in 30 of the highlight test's
-    /// 64 cases, `train_py.highlights`). [`Self::estimate_raw`] keeps that guess. HDR models see
-    /// the true radiance and are never filled.
+    /// 64 cases, `train_py.highlights`). [`Self::estimate_with`] can keep that guess. HDR
+    /// models see the true radiance and are never filled.
     pub fn estimate(&self, photo: &Photo) -> Result<NeuralMaterial> {
+        self.estimate_with(photo, true)
+    }
+
+    /// As [`Self::estimate`]; `fill_clipped: false` keeps the network's own params where the
+    /// photo clipped.
+    pub fn estimate_with(&self, photo: &Photo, fill_clipped: bool) -> Result<NeuralMaterial> {
         let mut map = self.network_params(photo)?;
-        if self.config().log_mode == LogMode::Ldr {
+        if fill_clipped && self.config().log_mode == LogMode::Ldr {
             let clipped: Vec<bool> = photo.saturated(LDR_CLAMP).collect();
             nam_model::fill_clipped(&mut map, &clipped)?;
         }
         NeuralMaterial::new(map, self.fingerprint.clone())
-    }
-
-    /// As [`Self::estimate`], but keeping the network's own params where the photo clipped.
-    pub fn estimate_raw(&self, photo: &Photo) -> Result<NeuralMaterial> {
-        NeuralMaterial::new(self.network_params(photo)?, self.fingerprint.clone())
     }
 
     /// The U-Net's param map of `photo`, on the GPU when one is attached.

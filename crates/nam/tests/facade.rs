@@ -599,11 +599,11 @@ fn photo_with_clipped_blob() -> (Photo, Vec<bool>) {
 }
 
 #[test]
-fn estimate_fills_only_the_clipped_pixels_and_estimate_raw_keeps_them() {
+fn estimate_fills_only_the_clipped_pixels_and_estimate_with_false_keeps_them() {
     let model = tiny();
     let (photo, clipped) = photo_with_clipped_blob();
     let filled = model.estimate(&photo).expect("estimate");
-    let raw = model.estimate_raw(&photo).expect("raw");
+    let raw = model.estimate_with(&photo, false).expect("raw");
     let c = filled.params().channels;
     for (p, &is_clipped) in clipped.iter().enumerate() {
         let (a, b) = (
@@ -617,6 +617,9 @@ fn estimate_fills_only_the_clipped_pixels_and_estimate_raw_keeps_them() {
     let white = Photo::from_linear_rgb(8, 8, vec![1.0; 8 * 8 * 3]).expect("white");
     assert_eq!(
         model.estimate(&white).expect("white").params(),
-        model.estimate_raw(&white).expect("white raw").params()
+        model
+            .estimate_with(&white, false)
+            .expect("white raw")
+            .params()
     );
 }

@@ -217,11 +217,7 @@ pub struct PhotoArgs {
 impl PhotoArgs {
     /// Estimates `photo`'s material, filling the clipped pixels' params unless `--keep-clipped`.
     pub fn estimate(&self, model: &NeuralModel, photo: &Photo) -> Result<NeuralMaterial> {
-        Ok(if self.keep_clipped {
-            model.estimate_raw(photo)?
-        } else {
-            model.estimate(photo)?
-        })
+        Ok(model.estimate_with(photo, !self.keep_clipped)?)
     }
 }
 
