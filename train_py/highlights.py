@@ -10,7 +10,11 @@ away from the camera (``MOVED_LIGHTS``, view at the camera). Two checks per (mat
 - **peak**: the relit highlight's peak (argmax of the luminance blurred with σ = ``PEAK_SIGMA`` px)
   lies within ``PEAK_TOLERANCE_PX`` of the GGX truth's;
 - **clipped**: over the pixels the capture clipped, the mean relit radiance is within
-  ``CLIPPED_RATIO`` of the truth's (neither a dark blob nor the capture highlight left in place).
+  ``CLIPPED_RATIO`` of the truth's (neither a dark blob nor the capture highlight left in place);
+- **peak brightness**: the relit blurred luminance at the truth's peak over the truth's there, within
+  ``CLIPPED_RATIO`` (a highlight in the right place but ~20× too dim, as a diffuse relight gives,
+  fails it; the peak check alone can pass on a diffuse relight's brightest spot, the foot of the
+  light, which lies near the moved highlight).
 
 The diffuse fit (Lambertian albedo from the photo) is scored the same way as a baseline.
 
@@ -124,28 +128,38 @@ def glossy(maps: dict[str, torch.Tensor], index: int) -> dict[str, torch.Tensor]
     return {**maps, "roughness": rough.clamp(0.02, 1), "specular": maps["specular"].clamp(min=SPECULAR_MIN)}
 
 
-def blurred_peak(radiance: torch.Tensor) -> tuple[float, float]:
-    """(row, col) of the maximum of the σ-blurred luminance of ``[H, W, 3]``."""
+def blurred_luminance(radiance: torch.Tensor) -> torch.Tensor:
+    """The luminance (channel mean) of ``[H, W, 3]`` blurred with a Gaussian of σ = ``PEAK_SIGMA``
+    px (replicate padding), ``[H, W]``."""
     lum = radiance.mean(-1)[None, None]
     r = int(3 * PEAK_SIGMA)
     x = torch.arange(-r, r + 1, dtype=torch.float32)
     k = torch.exp(-(x**2) / (2 * PEAK_SIGMA**2))
     k = k / k.sum()
     lum = F.conv2d(F.pad(lum, (r, r, 0, 0), mode="replicate"), k.view(1, 1, 1, -1))
-    lum = F.conv2d(F.pad(lum, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1))[0, 0]
-    idx = int(lum.argmax())
-    return divmod(idx, lum.shape[1])
+    return F.conv2d(F.pad(lum, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1))[0, 0]
 
 
-def score(pred: torch.Tensor, truth: torch.Tensor, clipped: torch.Tensor) -> tuple[float, float | None]:
-    """Peak distance (in pixels of a 256² image) and clipped-region mean radiance ratio (None when
-    nothing clipped)."""
-    (pr, pc), (tr, tc) = blurred_peak(pred), blurred_peak(truth)
+def blurred_peak(radiance: torch.Tensor) -> tuple[int, int]:
+    """(row, col) of the maximum of :func:`blurred_luminance`."""
+    lum = blurred_luminance(radiance)
+    return divmod(int(lum.argmax()), lum.shape[1])
+
+
+def score(pred: torch.Tensor, truth: torch.Tensor, clipped: torch.Tensor) -> tuple[float, float, float | None]:
+    """Peak distance (in pixels of a 256² image), peak brightness ratio (the relit blurred luminance
+    at the truth's peak over the truth's) and clipped-region mean radiance ratio (None when nothing
+    clipped)."""
+    truth_lum = blurred_luminance(truth)
+    tr, tc = divmod(int(truth_lum.argmax()), truth_lum.shape[1])
+    pred_lum = blurred_luminance(pred)
+    pr, pc = divmod(int(pred_lum.argmax()), pred_lum.shape[1])
     dist = math.hypot(pr - tr, pc - tc) * REFERENCE_SIZE / pred.shape[1]
+    bright = float(pred_lum[tr, tc] / truth_lum[tr, tc].clamp(min=1e-6))
     if not clipped.any():
-        return dist, None
+        return dist, bright, None
     ratio = float(pred.mean(-1)[clipped].mean() / truth.mean(-1)[clipped].mean().clamp(min=1e-6))
-    return dist, ratio
+    return dist, bright, ratio
 
 
 def run(
@@ -153,7 +167,7 @@ def run(
 ) -> dict[str, dict[str, float]]:
     """Pass rates and medians for the model (if given) and the diffuse fit, over the first ``count``
     test sets (default all); ``keep_clipped``: the network's own params where the capture clipped."""
-    res: dict[str, list[tuple[float, float | None]]] = (
+    res: dict[str, list[tuple[float, float, float | None]]] = (
         {"model": [], "diffuse fit": []} if model else {"diffuse fit": []}
     )
     view = ggx.capture_position().view(1, 1, 3)
@@ -173,13 +187,16 @@ def run(
                 res["model"].append(score(pred, truth, clipped))
     out = {}
     for method, rows in res.items():
-        within, median = peak_stats([d for d, _ in rows])
-        ratios = torch.tensor([r for _, r in rows if r is not None])
+        within, median = peak_stats([d for d, _, _ in rows])
+        bright = torch.tensor([b for _, b, _ in rows])
+        ratios = torch.tensor([r for _, _, r in rows if r is not None])
         ok = (ratios >= CLIPPED_RATIO[0]) & (ratios <= CLIPPED_RATIO[1])
         out[method] = {
             "cases": len(rows),
             "peak_within": within,
             "peak_median_px": median,
+            "bright_within": float(((bright >= CLIPPED_RATIO[0]) & (bright <= CLIPPED_RATIO[1])).float().mean()),
+            "bright_ratio_median": float(bright.median()),
             "clipped_cases": len(ratios),
             "clipped_within": float(ok.float().mean()) if len(ratios) else float("nan"),
             "clipped_ratio_median": float(ratios.median()) if len(ratios) else float("nan"),
@@ -195,17 +212,21 @@ def markdown(res: dict, model_path: str | None, size: int, seconds: float, keep_
         f"{sets} test sets, roughness median {ROUGHNESS_RANGE[0]}–{ROUGHNESS_RANGE[1]}, "
         f"{size}², 28° ideal 8-bit capture, {len(MOVED_LIGHTS)} moved lights each. Peak: blurred (σ {PEAK_SIGMA} px) "
         f"luminance maximum within {PEAK_TOLERANCE_PX:.0f} px of the GGX truth's. Clipped: mean radiance over "
-        f"the pixels the capture clipped within {CLIPPED_RATIO[0]}–{CLIPPED_RATIO[1]}× the truth. Model: "
+        f"the pixels the capture clipped within {CLIPPED_RATIO[0]}–{CLIPPED_RATIO[1]}× the truth. Peak "
+        f"brightness: the relit blurred luminance at the truth's peak within {CLIPPED_RATIO[0]}–{CLIPPED_RATIO[1]}× "
+        "the truth's. Model: "
         f"`{model_path}`. Command: `python -m train_py.highlights --model {model_path} --size {size}"
         f"{' --keep-clipped' if keep_clipped else ''}` "
         f"({seconds:.0f} s). Peak errors are in pixels of a {REFERENCE_SIZE}² image.",
         "",
-        "| method | peak within 10 px ↑ | median peak error (px) | clipped within 0.5–2× ↑ | median clipped ratio |",
-        "|---|---:|---:|---:|---:|",
+        "| method | peak within 10 px ↑ | median peak error (px) | peak brightness within 0.5–2× ↑ "
+        "| median peak brightness ratio | clipped within 0.5–2× ↑ | median clipped ratio |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for m, r in res.items():
         lines.append(
             f"| {m} | {100 * r['peak_within']:.0f}% of {r['cases']} | {r['peak_median_px']:.1f} | "
+            f"{100 * r['bright_within']:.0f}% | {r['bright_ratio_median']:.2f} | "
             f"{100 * r['clipped_within']:.0f}% of {r['clipped_cases']} | {r['clipped_ratio_median']:.2f} |"
         )
     return "\n".join(lines) + "\n"

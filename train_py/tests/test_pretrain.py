@@ -63,9 +63,20 @@ def test_blurred_peak_finds_a_moved_highlight_and_the_clipped_ratio():
     assert highlights.blurred_peak(img) == (40, 12)
     clipped = torch.zeros(64, 64, dtype=torch.bool)
     clipped[:4, :4] = True
-    dist, ratio = highlights.score(img * 2, img, clipped)
-    assert dist == 0 and abs(ratio - 2) < 1e-5
-    assert highlights.score(img, img, torch.zeros_like(clipped))[1] is None
+    dist, bright, ratio = highlights.score(img * 2, img, clipped)
+    assert dist == 0 and abs(bright - 2) < 1e-5 and abs(ratio - 2) < 1e-5
+    assert highlights.score(img, img, torch.zeros_like(clipped))[2] is None
+
+
+def test_peak_brightness_fails_a_relight_whose_highlight_is_in_place_but_dim():
+    # A diffuse-looking relight: its brightest spot is where the truth's highlight is, at 1/20 of it.
+    truth = torch.full((64, 64, 3), 0.1)
+    truth[30:34, 20:24] = 20.0
+    dim = truth.clone()
+    dim[30:34, 20:24] = 1.0
+    dist, bright, _ = highlights.score(dim, truth, torch.zeros(64, 64, dtype=torch.bool))
+    assert dist == 0
+    assert 0.05 < bright < 0.1  # the blur mixes in the 0.1 around the highlight
 
 
 def test_highlight_oracle_scores_perturbed_true_maps_and_flat_normals_miss_peaks():
