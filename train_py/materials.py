@@ -82,6 +82,16 @@ def load_maps(path: Path, size: int | None) -> dict[str, torch.Tensor]:
     return {k: v[None] for k, v in decode(load_panels(path, size)).items()}
 
 
+def flat_normals(maps: dict[str, torch.Tensor], pick: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    """``maps`` ``[B, H, W, ...]`` with the normals of the materials ``pick`` (``[B]`` bool; None:
+    all) replaced by ``+z``; the other maps untouched."""
+    up = torch.zeros_like(maps["normal"])
+    up[..., 2] = 1
+    if pick is not None:
+        up = torch.where(pick.view(-1, 1, 1, 1), up, maps["normal"])
+    return {**maps, "normal": up}
+
+
 def orient(maps: dict[str, torch.Tensor], k: int, flip: bool) -> dict[str, torch.Tensor]:
     """Maps ``[H, W, ...]`` rotated by ``k`` quarter turns counter-clockwise (as displayed), after an
     optional left-right flip; the normals' (x, y) turn with the image (x right, y up)."""

@@ -27,13 +27,6 @@ MIRROR_BINS = (0.0, 0.99, 0.999, 1.0)
 FLAT = "GGX, true maps, flat normals"
 
 
-def flat_normals(maps: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """``maps`` with every normal ``+z``."""
-    normal = torch.zeros_like(maps["normal"])
-    normal[..., 2] = 1
-    return {**maps, "normal": normal}
-
-
 def bin_index(wh_z: torch.Tensor) -> torch.Tensor:
     """The ``MIRROR_BINS`` bin of each ``wh.z`` (the last bin includes 1)."""
     edges = torch.tensor(MIRROR_BINS[1:-1], dtype=wh_z.dtype)
@@ -53,7 +46,8 @@ def breakdown(model, sets, hemisphere_k: int = 128) -> dict[str, dict]:
         light, view = light.float(), view.float()
         truth = ggx.render_maps(maps, light, view)[0]
         wi, wo, wh = ggx.directions(light, view, size, size)
-        preds = {"diffuse fit": diffuse_fit(photo, wi)[0], FLAT: ggx.render_maps(flat_normals(maps), light, view)[0]}
+        flat = ggx.render_maps(materials.flat_normals(maps), light, view)[0]
+        preds = {"diffuse fit": diffuse_fit(photo, wi)[0], FLAT: flat}
         if model is not None:
             with torch.no_grad():
                 params = model.estimate_photo(photo)

@@ -306,17 +306,27 @@ def make_batch(seeds: list[int], size: int, device) -> tuple[dict, torch.Tensor]
 
 
 def draw_batch(
-    seeds: list[int], size: int, device, bank: materials.MaterialBank | None, real_frac: float, phone: bool
+    seeds: list[int],
+    size: int,
+    device,
+    bank: materials.MaterialBank | None,
+    real_frac: float,
+    phone: bool,
+    flat_normal_frac: float = 0.0,
 ) -> tuple[dict, torch.Tensor, capture.Capture]:
     """Maps, network input and capture of one step: a share ``real_frac`` of the materials are
     augmented real sets (``bank``), the rest procedural; with ``phone`` the input is a phone-like
-    capture (random field of view and flash offset for the step, exposure, noise, clipping, JPEG)."""
+    capture (random field of view and flash offset for the step, exposure, noise, clipping, JPEG);
+    each material's normals are flat (``+z``, before the capture) with probability
+    ``flat_normal_frac``."""
     rng = gen.Rng(seeds[0] * 31 + 7)
     n_real = sum(rng.u() < real_frac for _ in seeds) if bank is not None else 0
     parts = [materials.batch(bank, seeds[:n_real], size)] if n_real else []
     if n_real < len(seeds):
         parts.append(gen.batch(seeds[n_real:], size))
     maps = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+    if flat_normal_frac > 0:
+        maps = materials.flat_normals(maps, torch.tensor([rng.u() < flat_normal_frac for _ in seeds]))
     if not phone:
         photo = ggx.ldr_capture(ggx.render_capture(maps))
         return {k: v.to(device) for k, v in maps.items()}, ggx.network_input(photo, "ldr").to(device), capture.Capture()
@@ -338,10 +348,20 @@ class CaptureStream(torch.utils.data.IterableDataset):
     CPU, for ``--workers`` DataLoader processes that keep a GPU fed (each worker its own seeded
     stream: the batches differ from a ``--workers 0`` run's, which draws them in the step loop)."""
 
-    def __init__(self, seed: int, batch: int, sizes: list[int], size: int, bank, real_frac: float, phone: bool):
+    def __init__(
+        self,
+        seed: int,
+        batch: int,
+        sizes: list[int],
+        size: int,
+        bank,
+        real_frac: float,
+        phone: bool,
+        flat_normal_frac: float = 0.0,
+    ):
         super().__init__()
         self.seed, self.batch, self.sizes, self.size = seed, batch, sizes, size
-        self.bank, self.real_frac, self.phone = bank, real_frac, phone
+        self.bank, self.real_frac, self.phone, self.flat_normal_frac = bank, real_frac, phone, flat_normal_frac
 
     def __iter__(self):
         info = torch.utils.data.get_worker_info()
@@ -349,7 +369,7 @@ class CaptureStream(torch.utils.data.IterableDataset):
         g = torch.Generator().manual_seed(self.seed * 1000003 + 104729 * (worker + 1))
         while True:
             seeds, size = draw_seeds_and_size(g, self.batch, self.sizes, self.size)
-            yield (size, *draw_batch(seeds, size, "cpu", self.bank, self.real_frac, self.phone))
+            yield (size, *draw_batch(seeds, size, "cpu", self.bank, self.real_frac, self.phone, self.flat_normal_frac))
 
 
 class StepProfiler:
@@ -654,6 +674,14 @@ def parse_args(argv=None):
         "training-only probe (MapProbe; not exported, not in the paper; 0: off)",
     )
     ap.add_argument(
+        "--flat-normal-frac",
+        type=float,
+        default=0.0,
+        help="flatten each training material's normals (n = +z, before its capture) with this "
+        "probability: a prior that lets the network put a moved highlight where a flat surface has "
+        "it instead of hedging over normals it cannot see (not in the paper; 0: off)",
+    )
+    ap.add_argument(
         "--fill-clipped",
         action="store_true",
         help="render the clipped pixels of a capture from params filled from the other pixels "
@@ -762,7 +790,14 @@ def train(args) -> dict:
     batches = None
     if args.workers:
         stream = CaptureStream(
-            args.seed + 7919 * state["step"], args.batch, sizes, args.size, bank, args.real_frac, args.phone
+            args.seed + 7919 * state["step"],
+            args.batch,
+            sizes,
+            args.size,
+            bank,
+            args.real_frac,
+            args.phone,
+            args.flat_normal_frac,
         )
         loader = torch.utils.data.DataLoader(
             stream, batch_size=None, num_workers=args.workers, pin_memory=device.type == "cuda", prefetch_factor=4
@@ -806,7 +841,9 @@ def train(args) -> dict:
             net_input = net_input.to(device, non_blocking=True)
         else:
             seeds, size = draw_seeds_and_size(data_gen, args.batch, sizes, args.size)
-            maps, net_input, cap = draw_batch(seeds, size, device, bank, args.real_frac, args.phone)
+            maps, net_input, cap = draw_batch(
+                seeds, size, device, bank, args.real_frac, args.phone, args.flat_normal_frac
+            )
         data_s += time.time() - t0
         outputs = max(1, round(args.outputs * (args.size / size) ** 2)) if sizes else args.outputs
         light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)

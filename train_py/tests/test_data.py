@@ -109,6 +109,18 @@ def test_draw_batch_mixes_real_and_procedural_materials():
     torch.testing.assert_close(plain_input, want_input)
 
 
+def test_flat_normal_frac_flattens_whole_materials_before_their_capture():
+    flat, flat_input, _ = draw_batch(list(range(10, 30)), 16, "cpu", None, 0.0, False, flat_normal_frac=0.5)
+    tilted, tilted_input, _ = draw_batch(list(range(10, 30)), 16, "cpu", None, 0.0, False)
+    is_flat = (flat["normal"][..., 2] == 1).flatten(1).all(1)
+    assert 0 < int(is_flat.sum()) < 20  # some materials, not all (20 draws at 0.5)
+    torch.testing.assert_close(flat["diffuse"], tilted["diffuse"])
+    torch.testing.assert_close(flat["normal"][~is_flat], tilted["normal"][~is_flat])
+    # The photo is of the flattened material: a flat one's differs from its tilted original's.
+    changed = (flat_input - tilted_input).abs().flatten(1).amax(1) > 0
+    assert changed[is_flat].any() and not changed[~is_flat].any()
+
+
 def test_capture_stream_draws_seeded_batches_per_worker_at_the_given_sizes():
     bank = materials.MaterialBank("train", side=64)
     stream = CaptureStream(5, 3, [16, 24], 16, bank, 0.5, True)

@@ -1,6 +1,6 @@
 import torch
 
-from train_py import ggx, mirror
+from train_py import ggx, materials, mirror
 from train_py.evaluate import heldout_sets
 from train_py.export import load_model
 
@@ -29,9 +29,12 @@ def test_breakdown_counts_every_pixel_once_and_finds_the_diffuse_fit_too_dark_at
     assert md.count("| model |") == 4 and "median truth luminance" in md
 
 
-def test_flat_normals_point_up_and_leave_the_other_maps_alone():
-    maps = next(heldout_sets(1, 16))[1]
-    flat = mirror.flat_normals(maps)
+def test_flat_normals_point_up_for_the_picked_materials_and_leave_the_other_maps_alone():
+    maps = {k: torch.cat([v, v]) for k, v in next(heldout_sets(1, 16))[1].items()}
+    flat = materials.flat_normals(maps)
     assert torch.equal(flat["normal"][..., 2], torch.ones_like(maps["roughness"]))
     assert torch.equal(flat["diffuse"], maps["diffuse"])
     assert torch.allclose(ggx.normalize(flat["normal"]), flat["normal"])
+    some = materials.flat_normals(maps, torch.tensor([False, True]))
+    assert torch.equal(some["normal"][0], maps["normal"][0])
+    assert torch.equal(some["normal"][1], flat["normal"][1])
