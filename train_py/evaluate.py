@@ -66,6 +66,25 @@ def heldout_sets(count: int | None, size: int | None):
         yield int(f.stem.rsplit("_", 1)[1]), box_downsample(maps, size or maps["roughness"].shape[-1])
 
 
+def evaluation_sets(which: str, count: int | None, size: int | None) -> tuple[list, int, str]:
+    """The evaluation's materials as ``(seed, maps [1, S, S, ...])``, their side ``S`` and a
+    description: ``procedural`` (``assets/heldout``; 64² or a divisor) or ``test`` (the real sets of
+    materials/test; default 128²); the first ``count`` (None: all)."""
+    if which == "test":
+        size = size or 128
+        files = materials.list_files("test")[:count]
+        sets = [(EVAL_SEED + i, materials.load_maps(f, size)) for i, f in enumerate(files)]
+        return sets, size, f"{len(files)} real CC0 SVBRDFs of materials/test (never trained on) at {size}²"
+    sets = list(heldout_sets(count, size))
+    side = sets[0][1]["roughness"].shape[-1]
+    seeds = [seed for seed, _ in sets]
+    return (
+        sets,
+        side,
+        f"{len(sets)} held-out procedural SVBRDFs (assets/heldout, seeds {seeds[0]}..{seeds[-1]}) at {side}²",
+    )
+
+
 def gaussian_window(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
     x = torch.arange(size, dtype=torch.float32) - size // 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
@@ -207,18 +226,8 @@ def main(argv: list[str] | None = None) -> None:
 
     model = load_model(args.model) if args.model else None
     t0 = time.time()
-    if args.set == "test":
-        size = args.size or 128
-        files = materials.list_files("test")[: args.materials]
-        sets = ((EVAL_SEED + i, materials.load_maps(f, size)) for i, f in enumerate(files))
-        res = evaluate_maps(model, sets, len(files), args.hemisphere, args.reflect, keep_clipped=args.keep_clipped)
-        what = f"{len(files)} real CC0 SVBRDFs of materials/test (never trained on) at {size}²"
-    else:
-        sets = list(heldout_sets(args.materials, args.size))
-        size = sets[0][1]["roughness"].shape[-1]
-        res = evaluate_maps(model, sets, len(sets), args.hemisphere, args.reflect, keep_clipped=args.keep_clipped)
-        seeds = [seed for seed, _ in sets]
-        what = f"{len(sets)} held-out procedural SVBRDFs (assets/heldout, seeds {seeds[0]}..{seeds[-1]}) at {size}²"
+    sets, size, what = evaluation_sets(args.set, args.materials, args.size)
+    res = evaluate_maps(model, sets, len(sets), args.hemisphere, args.reflect, keep_clipped=args.keep_clipped)
     note = (
         f"{what}, "
         f"LDR 8-bit capture input; Reflect {args.reflect}, Identity 1, Hemisphere {args.hemisphere} "

@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 
 from . import ggx, materials, protocols
-from .evaluate import EVAL_SEED, diffuse_fit, heldout_sets, pair_seed
+from .evaluate import diffuse_fit, evaluation_sets, pair_seed
 
 #: Bin edges of ``wh.z``: the rest, the highlight's skirt, its core.
 MIRROR_BINS = (0.0, 0.99, 0.999, 1.0)
@@ -115,16 +115,9 @@ def main(argv: list[str] | None = None) -> None:
 
     model = load_model(args.model) if args.model else None
     t0 = time.time()
-    if args.set == "test":
-        size, k = args.size or 128, args.hemisphere or 32
-        files = materials.list_files("test")[: args.materials]
-        sets = ((EVAL_SEED + i, materials.load_maps(f, size)) for i, f in enumerate(files))
-        what = f"{len(files)} real CC0 SVBRDFs of materials/test at {size}², {k} pairs each"
-    else:
-        k = args.hemisphere or 128
-        sets = list(heldout_sets(args.materials, args.size))
-        size = sets[0][1]["roughness"].shape[-1]
-        what = f"{len(sets)} held-out procedural SVBRDFs (assets/heldout) at {size}², {k} pairs each"
+    k = args.hemisphere or (32 if args.set == "test" else 128)
+    sets, size, what = evaluation_sets(args.set, args.materials, args.size)
+    what += f", {k} pairs each"
     acc = breakdown(model, sets, k)
     command = f"python -m train_py.mirror --model {args.model} --set {args.set} --size {size} --hemisphere {k}" + (
         f" --materials {args.materials}" if args.materials else ""

@@ -5,7 +5,7 @@ import math
 import torch
 from safetensors.torch import load_file
 
-from train_py import eval_agreement, protocols
+from train_py import eval_agreement, evaluate, protocols
 from train_py.evaluate import box_downsample, heldout_sets
 
 
@@ -59,3 +59,11 @@ def test_the_agreement_fixture_is_what_the_generator_writes():
             assert torch.equal(stored[k], v), k
         else:
             assert torch.allclose(stored[k], v, atol=AGREEMENT_SCORE_TOL, rtol=0), k
+
+
+def test_evaluation_sets_name_what_they_hold():
+    sets, side, what = evaluate.evaluation_sets("procedural", 2, 32)
+    assert side == 32 and len(sets) == 2 and sets[0][1]["roughness"].shape == (1, 32, 32)
+    assert what.startswith("2 held-out procedural") and str(sets[1][0]) in what
+    sets, side, what = evaluate.evaluation_sets("test", 1, 16)
+    assert side == 16 and len(sets) == 1 and sets[0][0] == evaluate.EVAL_SEED and "materials/test" in what
