@@ -140,20 +140,22 @@ def blurred_luminance(radiance: torch.Tensor) -> torch.Tensor:
     return F.conv2d(F.pad(lum, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1))[0, 0]
 
 
+def argmax_2d(image: torch.Tensor) -> tuple[int, int]:
+    """(row, col) of the maximum of ``[H, W]``."""
+    return divmod(int(image.argmax()), image.shape[1])
+
+
 def blurred_peak(radiance: torch.Tensor) -> tuple[int, int]:
     """(row, col) of the maximum of :func:`blurred_luminance`."""
-    lum = blurred_luminance(radiance)
-    return divmod(int(lum.argmax()), lum.shape[1])
+    return argmax_2d(blurred_luminance(radiance))
 
 
 def score(pred: torch.Tensor, truth: torch.Tensor, clipped: torch.Tensor) -> tuple[float, float, float | None]:
     """Peak distance (in pixels of a 256² image), peak brightness ratio (the relit blurred luminance
     at the truth's peak over the truth's) and clipped-region mean radiance ratio (None when nothing
     clipped)."""
-    truth_lum = blurred_luminance(truth)
-    tr, tc = divmod(int(truth_lum.argmax()), truth_lum.shape[1])
-    pred_lum = blurred_luminance(pred)
-    pr, pc = divmod(int(pred_lum.argmax()), pred_lum.shape[1])
+    truth_lum, pred_lum = blurred_luminance(truth), blurred_luminance(pred)
+    (tr, tc), (pr, pc) = argmax_2d(truth_lum), argmax_2d(pred_lum)
     dist = math.hypot(pr - tr, pc - tc) * REFERENCE_SIZE / pred.shape[1]
     bright = float(pred_lum[tr, tc] / truth_lum[tr, tc].clamp(min=1e-6))
     if not clipped.any():

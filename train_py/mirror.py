@@ -55,14 +55,15 @@ def breakdown(model, sets, hemisphere_k: int = 128) -> dict[str, dict]:
             preds["model"] = ggx.from_log(torch.cat(logs))
         index = bin_index(wh[0, ..., 2]).reshape(-1)
         mirror = index == bins - 1
-        truth_log = ggx.to_log(truth)
+        count = torch.bincount(index, minlength=bins).float()
+        truth_log, truth_mirror = ggx.to_log(truth), truth.mean(-1).reshape(-1)[mirror]
         for m, pred in preds.items():
             err = (ggx.to_log(pred) - truth_log).mean(-1).reshape(-1)
             a = acc[m]
-            a["count"] += torch.bincount(index, minlength=bins).float()
+            a["count"] += count
             a["abs"] += torch.bincount(index, err.abs(), minlength=bins).float()
             a["signed"] += torch.bincount(index, err, minlength=bins).float()
-            a["truth"].append(truth.mean(-1).reshape(-1)[mirror])
+            a["truth"].append(truth_mirror)
             a["relit"].append(pred.mean(-1).reshape(-1)[mirror])
     return acc
 
