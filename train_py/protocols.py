@@ -80,6 +80,21 @@ def mix_identity(
     )
 
 
+def mix_hemisphere(
+    gen: torch.Generator, light: torch.Tensor, view: torch.Tensor, frac: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Replaces each exemplar ``[B, K]`` by an independent uniform light and view (:func:`hemisphere`,
+    the Hemisphere protocol's distribution: any relight a user may ask for, most with no highlight
+    in the frame) with probability ``frac``. Reflect aims every light at a mirror point, so its
+    off-specular queries come only from mirror points far outside the frame (opt-in, not in the
+    paper)."""
+    if frac <= 0:
+        return light, view
+    hemi_l, hemi_v = hemisphere(gen, *light.shape[:2], light.dtype)
+    mask = torch.rand(*light.shape[:2], 1, generator=gen) < frac
+    return torch.where(mask, hemi_l, light), torch.where(mask, hemi_v, view)
+
+
 #: Radius range (surface units, in the plane parallel to the surface) of the light's move away
 #: from the camera in the moved-light protocol: from just off the lens to a wide side light.
 MOVED_LIGHT_RADIUS = (0.2, 3.0)

@@ -592,6 +592,14 @@ def parse_args(argv=None):
         "(protocols.moved_light: highlights in the frame, moved; 0: paper); drawn before --identity-frac",
     )
     ap.add_argument(
+        "--hemisphere-frac",
+        type=float,
+        default=0.0,
+        help="share of exemplars with independent uniform light and view on the hemisphere of radius 4 "
+        "(protocols.hemisphere, the Hemisphere protocol's distribution; 0: paper); drawn after "
+        "--moved-frac, before --identity-frac",
+    )
+    ap.add_argument(
         "--shared-geometry",
         action="store_true",
         help="the materials of a step share exemplar light/view and a uniform pixel subset; ND_enc "
@@ -848,6 +856,7 @@ def train(args) -> dict:
         outputs = max(1, round(args.outputs * (args.size / size) ** 2)) if sizes else args.outputs
         light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)
         light, view = protocols.mix_moved_light(data_gen, light, view, args.moved_frac, cap.camera())
+        light, view = protocols.mix_hemisphere(data_gen, light, view, args.hemisphere_frac)
         light, view = protocols.mix_identity(data_gen, light, view, args.identity_frac, (cap.flash(), cap.camera()))
         model.train()
         if state["frozen_bn"]:

@@ -217,6 +217,24 @@ def test_moved_light_keeps_the_view_at_the_camera_and_puts_most_highlights_in_th
     assert torch.equal(mixed_l[~at_cam], ref_l[~at_cam])
 
 
+def test_mix_hemisphere_draws_the_chosen_share_independently_on_the_hemisphere():
+    g = torch.Generator().manual_seed(6)
+    light, view = protocols.reflect(g, 64, 32)
+    same_l, same_v = protocols.mix_hemisphere(g, light, view, 0.0)
+    assert torch.equal(same_l, light) and torch.equal(same_v, view)
+    mixed_l, mixed_v = protocols.mix_hemisphere(g, light, view, 0.4)
+    replaced = (mixed_l != light).any(-1)
+    assert 0.35 < float(replaced.float().mean()) < 0.45
+    assert torch.equal(mixed_v[~replaced], view[~replaced])
+    for pos in (mixed_l[replaced], mixed_v[replaced]):
+        r = torch.linalg.vector_norm(pos, dim=-1)
+        assert torch.allclose(r, torch.full_like(r, protocols.HEMISPHERE_RADIUS), atol=1e-5)
+        assert float(pos[:, 2].min()) >= 0
+    # Independent: unlike Reflect (light on the view's mirror path), light and view are uncorrelated.
+    hemi_l, hemi_v = mixed_l[replaced], mixed_v[replaced]
+    assert abs(float(torch.corrcoef(torch.stack([hemi_l[:, 0], hemi_v[:, 0]]))[0, 1])) < 0.1
+
+
 def test_shared_geometry_step_is_the_per_material_step_with_one_nd_enc_per_exemplar_pixel():
     torch.manual_seed(0)
     model = NamModel(CONFIGS["tiny"])
