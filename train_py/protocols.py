@@ -59,6 +59,21 @@ def hemisphere(gen: torch.Generator, batch: int, k: int, dtype=torch.float32) ->
     return light, view
 
 
+def _replace_share(
+    gen: torch.Generator,
+    light: torch.Tensor,
+    view: torch.Tensor,
+    frac: float,
+    other_light: torch.Tensor,
+    other_view: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each exemplar ``[B, K]`` of ``light``/``view`` swapped for ``other_*`` (broadcast to it) with
+    probability ``frac``: the one draw the ``mix_*`` functions share (the mask is drawn after
+    ``other_*``)."""
+    mask = torch.rand(*light.shape[:2], 1, generator=gen) < frac
+    return torch.where(mask, other_light, light), torch.where(mask, other_view, view)
+
+
 def mix_identity(
     gen: torch.Generator,
     light: torch.Tensor,
@@ -74,10 +89,7 @@ def mix_identity(
         return light, view
     cam = torch.tensor([0.0, 0.0, CAPTURE_DISTANCE], dtype=light.dtype)
     flash, camera = capture if capture is not None else (cam, cam)
-    mask = torch.rand(*light.shape[:2], 1, generator=gen) < frac
-    return torch.where(mask, flash.to(light).expand_as(light), light), torch.where(
-        mask, camera.to(view).expand_as(view), view
-    )
+    return _replace_share(gen, light, view, frac, flash.to(light).expand_as(light), camera.to(view).expand_as(view))
 
 
 def mix_hemisphere(
@@ -90,9 +102,7 @@ def mix_hemisphere(
     paper)."""
     if frac <= 0:
         return light, view
-    hemi_l, hemi_v = hemisphere(gen, *light.shape[:2], light.dtype)
-    mask = torch.rand(*light.shape[:2], 1, generator=gen) < frac
-    return torch.where(mask, hemi_l, light), torch.where(mask, hemi_v, view)
+    return _replace_share(gen, light, view, frac, *hemisphere(gen, *light.shape[:2], light.dtype))
 
 
 #: Radius range (surface units, in the plane parallel to the surface) of the light's move away
@@ -126,9 +136,7 @@ def mix_moved_light(
     """Replaces each exemplar ``[B, K]`` by a :func:`moved_light` one with probability ``frac``."""
     if frac <= 0:
         return light, view
-    moved_l, moved_v = moved_light(gen, *light.shape[:2], camera, light.dtype)
-    mask = torch.rand(*light.shape[:2], 1, generator=gen) < frac
-    return torch.where(mask, moved_l, light), torch.where(mask, moved_v, view)
+    return _replace_share(gen, light, view, frac, *moved_light(gen, *light.shape[:2], camera, light.dtype))
 
 
 PROTOCOLS = ("reflect", "identity", "hemisphere")
