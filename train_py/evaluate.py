@@ -85,6 +85,15 @@ def evaluation_sets(which: str, count: int | None, size: int | None) -> tuple[li
     )
 
 
+def material_labels(which: str, sets: list) -> list[str]:
+    """Names of :func:`evaluation_sets`' materials: the file stem of a real set, the seed of a
+    procedural one."""
+    if which == "test":
+        files = materials.list_files("test")
+        return [files[seed - EVAL_SEED].stem for seed, _ in sets]
+    return [str(seed) for seed, _ in sets]
+
+
 def gaussian_window(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
     x = torch.arange(size, dtype=torch.float32) - size // 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
@@ -141,16 +150,20 @@ def evaluate_maps(
     device: str = "cpu",
     protocol_names: tuple[str, ...] = protocols.PROTOCOLS,
     keep_clipped: bool = False,
+    per_material: list | None = None,
 ) -> dict[str, dict[str, dict[str, float]]]:
     """As :func:`evaluate_protocols` for ``count`` materials given as ``(seed, maps [1, H, W, ...])``;
     ``seed`` picks the light/view pairs. ``keep_clipped``: the network's own params where the
-    capture clipped (``NamModel.estimate_photo``)."""
+    capture clipped (``NamModel.estimate_photo``). ``per_material``: if given, one
+    ``{protocol: {method: {"log_l1", "signed"}}}`` per material is appended to it (``signed``: the
+    mean of ln(1+R̂) − ln(1+R), > 0 too bright)."""
     counts = {"reflect": reflect_k, "identity": 1, "hemisphere": hemisphere_k}
     sums: dict[str, dict[str, dict[str, float]]] = {}
     for p in protocol_names:
         methods = ["printout", "diffuse fit"] + (["model"] if model is not None else [])
         sums[p] = {m: {"log_l1": 0.0, "ssim": 0.0} for m in methods}
     for seed, maps in sets:
+        own: dict[str, dict[str, dict[str, float]]] = {p: {} for p in protocol_names}
         size = maps["roughness"].shape[-1]
         photo = ggx.ldr_capture(ggx.render_capture(maps))
         params = None
@@ -172,8 +185,12 @@ def evaluate_maps(
                 preds["model"] = ggx.from_log(torch.cat(logs, dim=0))
             gt_log = ggx.to_log(gt)
             for m, pred in preds.items():
-                sums[p][m]["log_l1"] += float((ggx.to_log(pred) - gt_log).abs().mean()) / count
+                err = ggx.to_log(pred) - gt_log
+                own[p][m] = {"log_l1": float(err.abs().mean()), "signed": float(err.mean())}
+                sums[p][m]["log_l1"] += own[p][m]["log_l1"] / count
                 sums[p][m]["ssim"] += float(ssim(to_display(pred), to_display(gt))) / count
+        if per_material is not None:
+            per_material.append(own)
     return sums
 
 
@@ -201,6 +218,25 @@ def markdown(results: dict, title: str, note: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def per_material_markdown(labels: list[str], rows: list[dict], protocol: str = "hemisphere") -> str:
+    """One protocol's log-L1 per material (rows as :func:`evaluate_maps` appends them): the model,
+    the diffuse fit, their ratio, the model's signed error and its share of the model's mean."""
+    total = sum(r[protocol]["model"]["log_l1"] for r in rows)
+    lines = [
+        f"## {protocol.capitalize()} log-L1 per material",
+        "",
+        "| material | model | diffuse fit | model ÷ fit | model signed (> 0: too bright) | share of model error |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for label, r in zip(labels, rows, strict=True):
+        m, f = r[protocol]["model"], r[protocol]["diffuse fit"]
+        lines.append(
+            f"| {label} | {m['log_l1']:.4f} | {f['log_l1']:.4f} | {m['log_l1'] / f['log_l1']:.2f} | "
+            f"{m['signed']:+.4f} | {100 * m['log_l1'] / total:.0f}% |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", help="model .safetensors (omit: baselines only)")
@@ -218,8 +254,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--keep-clipped", action="store_true", help="the network's own params where the capture clipped (not filled)"
     )
+    ap.add_argument(
+        "--per-material", action="store_true", help="add a table of each material's Hemisphere log-L1 (needs --model)"
+    )
     ap.add_argument("-o", "--output", help="write the Markdown table here")
     args = ap.parse_args(argv)
+    if args.per_material and not args.model:
+        ap.error("--per-material needs --model")
     if args.threads:
         torch.set_num_threads(args.threads)
     from .export import load_model
@@ -227,7 +268,10 @@ def main(argv: list[str] | None = None) -> None:
     model = load_model(args.model) if args.model else None
     t0 = time.time()
     sets, size, what = evaluation_sets(args.set, args.materials, args.size)
-    res = evaluate_maps(model, sets, len(sets), args.hemisphere, args.reflect, keep_clipped=args.keep_clipped)
+    rows: list | None = [] if args.per_material else None
+    res = evaluate_maps(
+        model, sets, len(sets), args.hemisphere, args.reflect, keep_clipped=args.keep_clipped, per_material=rows
+    )
     note = (
         f"{what}, "
         f"LDR 8-bit capture input; Reflect {args.reflect}, Identity 1, Hemisphere {args.hemisphere} "
@@ -236,9 +280,12 @@ def main(argv: list[str] | None = None) -> None:
         + (f"--materials {args.materials} " if args.materials else "")
         + f"--size {size} --hemisphere {args.hemisphere}"
         + (" --keep-clipped" if args.keep_clipped else "")
+        + (" --per-material" if args.per_material else "")
         + f"` ({time.time() - t0:.0f} s)."
     )
     md = markdown(res, "Evaluation: log-L1 and SSIM by protocol", note)
+    if rows is not None:
+        md += "\n" + per_material_markdown(material_labels(args.set, sets), rows)
     print(md)
     if args.output:
         Path(args.output).write_text(md)

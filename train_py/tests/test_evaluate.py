@@ -67,3 +67,27 @@ def test_evaluation_sets_name_what_they_hold():
     assert what.startswith("2 held-out procedural") and str(sets[1][0]) in what
     sets, side, what = evaluate.evaluation_sets("test", 1, 16)
     assert side == 16 and len(sets) == 1 and sets[0][0] == evaluate.EVAL_SEED and "materials/test" in what
+
+
+def test_per_material_rows_average_to_the_table_and_name_each_material():
+    from train_py.export import load_model
+
+    from .conftest import FIXTURES
+
+    sets, _, _ = evaluate.evaluation_sets("procedural", 3, 16)
+    rows: list = []
+    model = load_model(FIXTURES / "net_tiny.safetensors")
+    res = evaluate.evaluate_maps(model, sets, len(sets), hemisphere_k=4, reflect_k=2, per_material=rows)
+    assert len(rows) == 3
+    for p, methods in res.items():
+        for m, score in methods.items():
+            mean = sum(r[p][m]["log_l1"] for r in rows) / 3
+            assert math.isclose(score["log_l1"], mean, rel_tol=1e-9), (p, m)
+            assert all(r[p][m]["log_l1"] >= abs(r[p][m]["signed"]) for r in rows)
+    md = evaluate.per_material_markdown(evaluate.material_labels("procedural", sets), rows)
+    lines = [line for line in md.splitlines() if line.startswith("| 1000002")]
+    assert [line.split(" | ")[0][2:] for line in lines] == [str(seed) for seed, _ in sets]
+    shares = [float(line.rstrip(" |").rsplit("| ", 1)[1].rstrip("%")) for line in lines]
+    assert abs(sum(shares) - 100) <= 2
+    test_sets, _, _ = evaluate.evaluation_sets("test", 2, 16)
+    assert evaluate.material_labels("test", test_sets) == [f.stem for f in evaluate.materials.list_files("test")[:2]]
