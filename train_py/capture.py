@@ -76,12 +76,18 @@ def render(maps: dict[str, torch.Tensor], capture: Capture) -> torch.Tensor:
     return ggx.render_maps(maps, light, view)[:, 0]
 
 
-def expose(maps: dict[str, torch.Tensor], capture: Capture, rng: gen.Rng) -> dict[str, torch.Tensor]:
+def expose(
+    maps: dict[str, torch.Tensor],
+    capture: Capture,
+    rng: gen.Rng,
+    exposure: tuple[float, float] = EXPOSURE_MEDIAN,
+) -> dict[str, torch.Tensor]:
     """Maps ``[B, ...]`` with diffuse and specular scaled (per material) so the capture's median
-    radiance lands on a random grey, as a phone's auto-exposure does; clamped to [0, 1]."""
+    radiance lands on a random grey (log-uniform in ``exposure``), as a phone's auto-exposure does;
+    clamped to [0, 1]."""
     radiance = render(maps, capture)
     median = radiance.mean(-1).flatten(1).median(dim=1).values.clamp(min=1e-4)
-    goal = torch.tensor([rng.logu(*EXPOSURE_MEDIAN) for _ in range(median.shape[0])])
+    goal = torch.tensor([rng.logu(*exposure) for _ in range(median.shape[0])])
     k = (goal / median).clamp(1 / EXPOSURE_LIMIT, EXPOSURE_LIMIT)[:, None, None, None]
     return {**maps, "diffuse": (maps["diffuse"] * k).clamp(0, 1), "specular": (maps["specular"] * k).clamp(0, 1)}
 
@@ -107,10 +113,14 @@ def phone_photo(radiance: torch.Tensor, rng: gen.Rng) -> torch.Tensor:
 
 
 def photograph(
-    maps: dict[str, torch.Tensor], capture: Capture, rng: gen.Rng
+    maps: dict[str, torch.Tensor],
+    capture: Capture,
+    rng: gen.Rng,
+    exposure: tuple[float, float] = EXPOSURE_MEDIAN,
 ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-    """Exposed maps and the network input ``[B, 4, H, W]`` of their phone-like photo."""
-    maps = expose(maps, capture, rng)
+    """Exposed maps (:func:`expose`) and the network input ``[B, 4, H, W]`` of their phone-like
+    photo."""
+    maps = expose(maps, capture, rng, exposure)
     photo = phone_photo(render(maps, capture), rng)
     return maps, ggx.network_input(photo, "ldr", capture.distance)
 

@@ -313,11 +313,12 @@ def draw_batch(
     real_frac: float,
     phone: bool,
     flat_normal_frac: float = 0.0,
+    exposure: tuple[float, float] = capture.EXPOSURE_MEDIAN,
 ) -> tuple[dict, torch.Tensor, capture.Capture]:
     """Maps, network input and capture of one step: a share ``real_frac`` of the materials are
     augmented real sets (``bank``), the rest procedural; with ``phone`` the input is a phone-like
-    capture (random field of view and flash offset for the step, exposure, noise, clipping, JPEG);
-    each material's normals are flat (``+z``, before the capture) with probability
+    capture (random field of view and flash offset for the step, exposure with its median in
+    ``exposure``, noise, clipping, JPEG); each material's normals are flat (``+z``, before the capture) with probability
     ``flat_normal_frac``."""
     rng = gen.Rng(seeds[0] * 31 + 7)
     n_real = sum(rng.u() < real_frac for _ in seeds) if bank is not None else 0
@@ -331,7 +332,7 @@ def draw_batch(
         photo = ggx.ldr_capture(ggx.render_capture(maps))
         return {k: v.to(device) for k, v in maps.items()}, ggx.network_input(photo, "ldr").to(device), capture.Capture()
     cap = capture.Capture.random(rng.gen)
-    maps, net_input = capture.photograph(maps, cap, rng)
+    maps, net_input = capture.photograph(maps, cap, rng, exposure)
     return {k: v.to(device) for k, v in maps.items()}, net_input.to(device), cap
 
 
@@ -358,10 +359,12 @@ class CaptureStream(torch.utils.data.IterableDataset):
         real_frac: float,
         phone: bool,
         flat_normal_frac: float = 0.0,
+        exposure: tuple[float, float] = capture.EXPOSURE_MEDIAN,
     ):
         super().__init__()
         self.seed, self.batch, self.sizes, self.size = seed, batch, sizes, size
         self.bank, self.real_frac, self.phone, self.flat_normal_frac = bank, real_frac, phone, flat_normal_frac
+        self.exposure = exposure
 
     def __iter__(self):
         info = torch.utils.data.get_worker_info()
@@ -369,7 +372,12 @@ class CaptureStream(torch.utils.data.IterableDataset):
         g = torch.Generator().manual_seed(self.seed * 1000003 + 104729 * (worker + 1))
         while True:
             seeds, size = draw_seeds_and_size(g, self.batch, self.sizes, self.size)
-            yield (size, *draw_batch(seeds, size, "cpu", self.bank, self.real_frac, self.phone, self.flat_normal_frac))
+            yield (
+                size,
+                *draw_batch(
+                    seeds, size, "cpu", self.bank, self.real_frac, self.phone, self.flat_normal_frac, self.exposure
+                ),
+            )
 
 
 class StepProfiler:
@@ -511,6 +519,17 @@ def save_checkpoint(
         saved["averaged"] = averaged.state_dict()
     torch.save(saved, tmp)
     os.replace(tmp, path)
+
+
+def _exposure_range(text: str) -> tuple[float, float]:
+    """``LO,HI`` → ``(LO, HI)`` with 0 < LO ≤ HI ≤ 1 (a photo's median radiance)."""
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LO,HI (two numbers), got {text!r}") from None
+    if not 0 < lo <= hi <= 1:
+        raise argparse.ArgumentTypeError(f"need 0 < LO <= HI <= 1, got {text!r}")
+    return lo, hi
 
 
 def parse_args(argv=None):
@@ -665,6 +684,14 @@ def parse_args(argv=None):
         "noise, clipping, 8-bit sRGB, sometimes JPEG (default: the ideal 28 deg co-located capture)",
     )
     ap.add_argument(
+        "--exposure-median",
+        type=_exposure_range,
+        default=capture.EXPOSURE_MEDIAN,
+        metavar="LO,HI",
+        help="with --phone: the auto-exposed photo's median linear radiance, log-uniform in LO..HI "
+        f"(default {capture.EXPOSURE_MEDIAN[0]},{capture.EXPOSURE_MEDIAN[1]})",
+    )
+    ap.add_argument(
         "--decoder",
         default=None,
         help="train_py.pretrain checkpoint: its ND_enc and M_render start the run, its map encoder E "
@@ -806,6 +833,7 @@ def train(args) -> dict:
             args.real_frac,
             args.phone,
             args.flat_normal_frac,
+            args.exposure_median,
         )
         loader = torch.utils.data.DataLoader(
             stream, batch_size=None, num_workers=args.workers, pin_memory=device.type == "cuda", prefetch_factor=4
@@ -850,7 +878,7 @@ def train(args) -> dict:
         else:
             seeds, size = draw_seeds_and_size(data_gen, args.batch, sizes, args.size)
             maps, net_input, cap = draw_batch(
-                seeds, size, device, bank, args.real_frac, args.phone, args.flat_normal_frac
+                seeds, size, device, bank, args.real_frac, args.phone, args.flat_normal_frac, args.exposure_median
             )
         data_s += time.time() - t0
         outputs = max(1, round(args.outputs * (args.size / size) ** 2)) if sizes else args.outputs

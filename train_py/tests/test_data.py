@@ -5,9 +5,10 @@ import os
 import subprocess
 import sys
 
+import pytest
 import torch
 
-from train_py import capture, gen, ggx, materials
+from train_py import capture, gen, ggx, materials, train
 from train_py.train import CaptureStream, draw_batch, make_batch
 
 from .conftest import REPO
@@ -85,6 +86,27 @@ def test_phone_capture_clips_quantises_and_keeps_maps_consistent():
         ratio = exposed[key].sum() / maps[key].sum()
         assert 1 / capture.EXPOSURE_LIMIT - 1e-4 <= ratio <= capture.EXPOSURE_LIMIT + 1e-4
     assert exposed["roughness"] is maps["roughness"]
+
+
+def test_exposure_puts_the_photo_median_on_the_asked_grey_within_the_limit():
+    maps = gen.batch([3], 32)
+    cap = capture.Capture()
+    natural = float(capture.render(maps, cap).mean(-1).median())
+    assert max(float(maps["diffuse"].max()), float(maps["specular"].max())) * 1.5 < 1  # no clamp at 1
+    goal = 1.5 * natural
+    exposed = capture.expose(maps, cap, gen.Rng(1), exposure=(goal, goal))
+    assert math.isclose(float(capture.render(exposed, cap).mean(-1).median()), goal, rel_tol=1e-3)
+    far = 10 * capture.EXPOSURE_LIMIT * natural
+    exposed = capture.expose(maps, cap, gen.Rng(1), exposure=(far, far))
+    torch.testing.assert_close(exposed["diffuse"], (maps["diffuse"] * capture.EXPOSURE_LIMIT).clamp(max=1))
+
+
+def test_exposure_median_flag_takes_a_range_of_radiance_and_refuses_others():
+    assert train.parse_args(["--exposure-median", "0.01,0.8"]).exposure_median == (0.01, 0.8)
+    assert train.parse_args([]).exposure_median == capture.EXPOSURE_MEDIAN
+    for bad in ("0.5", "0.8,0.1", "0,0.5", "0.1,1.5", "a,b"):
+        with pytest.raises(SystemExit):
+            train.parse_args(["--exposure-median", bad])
 
 
 def test_random_captures_cover_the_field_of_view_range_and_flash_offsets():
