@@ -31,7 +31,7 @@ from . import gen, ggx, materials
 from .export import freeze_batchnorm, unfold_model
 from .highlights import glossy_sets, peak_stats, score
 from .model import CONFIGS, UNet
-from .train import MapProbe, draw_batch, lr_at, maps_l1
+from .train import DataMix, MapProbe, draw_batch, lr_at, maps_l1
 
 #: Side of the scoring renders (peak distances are scaled to 256²).
 SCORE_SIZE = 128
@@ -124,7 +124,7 @@ def heldout_tilt(net: MapsNet, real_frac: float, root: Path = materials.DEFAULT_
     total = 0.0
     for b in range(count):
         seeds = [gen.HELD_OUT_SEED_BASE + batch * b + i for i in range(batch)]
-        maps, net_input, _ = draw_batch(seeds, side, "cpu", bank, real_frac, phone=True)
+        maps, net_input, _ = draw_batch(seeds, side, "cpu", bank, DataMix(real_frac, phone=True))
         total += float(tilt_unexplained(net(net_input)[0].float(), maps["normal"]))
     return total / count
 
@@ -192,7 +192,7 @@ def train(args) -> None:
             group["lr"] = lr_at(elapsed / (60 * args.minutes), args.lr, args.lr_final) * group["lr_scale"]
         seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (args.batch,), generator=data_gen).tolist()
         size = sizes[int(torch.randint(0, len(sizes), (), generator=data_gen))]
-        maps, net_input, _ = draw_batch(seeds, size, "cpu", bank, args.real_frac, phone=True)
+        maps, net_input, _ = draw_batch(seeds, size, "cpu", bank, DataMix(args.real_frac, phone=True))
         net.train()
         if state["frozen_bn"]:
             freeze_batchnorm(net)

@@ -305,34 +305,47 @@ def make_batch(seeds: list[int], size: int, device) -> tuple[dict, torch.Tensor]
     return maps, ggx.network_input(photo, "ldr")
 
 
+@dataclasses.dataclass(frozen=True)
+class DataMix:
+    """What a step's materials and their photos are drawn from (:func:`draw_batch`)."""
+
+    #: Share of the materials drawn from the real sets (augmented), the rest procedural.
+    real_frac: float = 0.0
+    #: Phone-like captures (``capture.photograph``) instead of the ideal 28° co-located one.
+    phone: bool = False
+    #: Probability that a material's normals are flattened (``+z``, before its capture).
+    flat_normal_frac: float = 0.0
+    #: Range of a phone capture's auto-exposed median radiance (log-uniform).
+    exposure: tuple[float, float] = capture.EXPOSURE_MEDIAN
+
+    @staticmethod
+    def from_args(args) -> DataMix:
+        return DataMix(args.real_frac, args.phone, args.flat_normal_frac, args.exposure_median)
+
+
 def draw_batch(
     seeds: list[int],
     size: int,
     device,
     bank: materials.MaterialBank | None,
-    real_frac: float,
-    phone: bool,
-    flat_normal_frac: float = 0.0,
-    exposure: tuple[float, float] = capture.EXPOSURE_MEDIAN,
+    mix: DataMix,
 ) -> tuple[dict, torch.Tensor, capture.Capture]:
-    """Maps, network input and capture of one step: a share ``real_frac`` of the materials are
-    augmented real sets (``bank``), the rest procedural; with ``phone`` the input is a phone-like
-    capture (random field of view and flash offset for the step, exposure with its median in
-    ``exposure``, noise, clipping, JPEG); each material's normals are flat (``+z``, before the capture) with probability
-    ``flat_normal_frac``."""
+    """Maps, network input and capture of one step, drawn as ``mix`` says (real sets from
+    ``bank``); a phone capture draws the field of view and flash offset for the step, exposure,
+    noise, clipping and JPEG per material."""
     rng = gen.Rng(seeds[0] * 31 + 7)
-    n_real = sum(rng.u() < real_frac for _ in seeds) if bank is not None else 0
+    n_real = sum(rng.u() < mix.real_frac for _ in seeds) if bank is not None else 0
     parts = [materials.batch(bank, seeds[:n_real], size)] if n_real else []
     if n_real < len(seeds):
         parts.append(gen.batch(seeds[n_real:], size))
     maps = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
-    if flat_normal_frac > 0:
-        maps = materials.flat_normals(maps, torch.tensor([rng.u() < flat_normal_frac for _ in seeds]))
-    if not phone:
+    if mix.flat_normal_frac > 0:
+        maps = materials.flat_normals(maps, torch.tensor([rng.u() < mix.flat_normal_frac for _ in seeds]))
+    if not mix.phone:
         photo = ggx.ldr_capture(ggx.render_capture(maps))
         return {k: v.to(device) for k, v in maps.items()}, ggx.network_input(photo, "ldr").to(device), capture.Capture()
     cap = capture.Capture.random(rng.gen)
-    maps, net_input = capture.photograph(maps, cap, rng, exposure)
+    maps, net_input = capture.photograph(maps, cap, rng, mix.exposure)
     return {k: v.to(device) for k, v in maps.items()}, net_input.to(device), cap
 
 
@@ -356,15 +369,11 @@ class CaptureStream(torch.utils.data.IterableDataset):
         sizes: list[int],
         size: int,
         bank,
-        real_frac: float,
-        phone: bool,
-        flat_normal_frac: float = 0.0,
-        exposure: tuple[float, float] = capture.EXPOSURE_MEDIAN,
+        mix: DataMix,
     ):
         super().__init__()
         self.seed, self.batch, self.sizes, self.size = seed, batch, sizes, size
-        self.bank, self.real_frac, self.phone, self.flat_normal_frac = bank, real_frac, phone, flat_normal_frac
-        self.exposure = exposure
+        self.bank, self.mix = bank, mix
 
     def __iter__(self):
         info = torch.utils.data.get_worker_info()
@@ -372,12 +381,7 @@ class CaptureStream(torch.utils.data.IterableDataset):
         g = torch.Generator().manual_seed(self.seed * 1000003 + 104729 * (worker + 1))
         while True:
             seeds, size = draw_seeds_and_size(g, self.batch, self.sizes, self.size)
-            yield (
-                size,
-                *draw_batch(
-                    seeds, size, "cpu", self.bank, self.real_frac, self.phone, self.flat_normal_frac, self.exposure
-                ),
-            )
+            yield (size, *draw_batch(seeds, size, "cpu", self.bank, self.mix))
 
 
 class StepProfiler:
@@ -822,19 +826,10 @@ def train(args) -> dict:
 
     emit(f"# {json.dumps(vars(args))} world={world}")
     sizes = [int(v) for v in args.sizes.split(",") if v.strip()]
+    mix = DataMix.from_args(args)
     batches = None
     if args.workers:
-        stream = CaptureStream(
-            args.seed + 7919 * state["step"],
-            args.batch,
-            sizes,
-            args.size,
-            bank,
-            args.real_frac,
-            args.phone,
-            args.flat_normal_frac,
-            args.exposure_median,
-        )
+        stream = CaptureStream(args.seed + 7919 * state["step"], args.batch, sizes, args.size, bank, mix)
         loader = torch.utils.data.DataLoader(
             stream, batch_size=None, num_workers=args.workers, pin_memory=device.type == "cuda", prefetch_factor=4
         )
@@ -877,9 +872,7 @@ def train(args) -> dict:
             net_input = net_input.to(device, non_blocking=True)
         else:
             seeds, size = draw_seeds_and_size(data_gen, args.batch, sizes, args.size)
-            maps, net_input, cap = draw_batch(
-                seeds, size, device, bank, args.real_frac, args.phone, args.flat_normal_frac, args.exposure_median
-            )
+            maps, net_input, cap = draw_batch(seeds, size, device, bank, mix)
         data_s += time.time() - t0
         outputs = max(1, round(args.outputs * (args.size / size) ** 2)) if sizes else args.outputs
         light, view = protocols.reflect(data_gen, 1 if args.shared_geometry else args.batch, outputs)

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from train_py import capture, gen, ggx, materials, train
-from train_py.train import CaptureStream, draw_batch, make_batch
+from train_py.train import CaptureStream, DataMix, draw_batch, make_batch
 
 from .conftest import REPO
 
@@ -104,6 +104,10 @@ def test_exposure_puts_the_photo_median_on_the_asked_grey_within_the_limit():
 def test_exposure_median_flag_takes_a_range_of_radiance_and_refuses_others():
     assert train.parse_args(["--exposure-median", "0.01,0.8"]).exposure_median == (0.01, 0.8)
     assert train.parse_args([]).exposure_median == capture.EXPOSURE_MEDIAN
+    flags = "--real-frac 0.5 --phone --flat-normal-frac 0.25 --exposure-median 0.1,0.2"
+    args = train.parse_args(flags.split())
+    assert DataMix.from_args(args) == DataMix(0.5, True, 0.25, (0.1, 0.2))
+    assert DataMix.from_args(train.parse_args([])) == DataMix()
     for bad in ("0.5", "0.8,0.1", "0,0.5", "0.1,1.5", "a,b"):
         with pytest.raises(SystemExit):
             train.parse_args(["--exposure-median", bad])
@@ -121,10 +125,10 @@ def test_random_captures_cover_the_field_of_view_range_and_flash_offsets():
 
 def test_draw_batch_mixes_real_and_procedural_materials():
     bank = materials.MaterialBank("train", side=64)
-    maps, net_input, cap = draw_batch([3, 4, 5, 6], 32, "cpu", bank, 0.5, True)
+    maps, net_input, cap = draw_batch([3, 4, 5, 6], 32, "cpu", bank, DataMix(0.5, phone=True))
     assert net_input.shape == (4, 4, 32, 32) and maps["normal"].shape == (4, 32, 32, 3)
     assert capture.FOV_RANGE[0] <= cap.fov <= capture.FOV_RANGE[1]
-    plain, plain_input, plain_cap = draw_batch([3, 4], 32, "cpu", None, 0.0, False)
+    plain, plain_input, plain_cap = draw_batch([3, 4], 32, "cpu", None, DataMix())
     assert plain_cap == capture.Capture()
     want_maps, want_input = make_batch([3, 4], 32, "cpu")
     torch.testing.assert_close(plain["diffuse"], want_maps["diffuse"])
@@ -132,8 +136,8 @@ def test_draw_batch_mixes_real_and_procedural_materials():
 
 
 def test_flat_normal_frac_flattens_whole_materials_before_their_capture():
-    flat, flat_input, _ = draw_batch(list(range(10, 30)), 16, "cpu", None, 0.0, False, flat_normal_frac=0.5)
-    tilted, tilted_input, _ = draw_batch(list(range(10, 30)), 16, "cpu", None, 0.0, False)
+    flat, flat_input, _ = draw_batch(list(range(10, 30)), 16, "cpu", None, DataMix(flat_normal_frac=0.5))
+    tilted, tilted_input, _ = draw_batch(list(range(10, 30)), 16, "cpu", None, DataMix())
     is_flat = (flat["normal"][..., 2] == 1).flatten(1).all(1)
     assert 0 < int(is_flat.sum()) < 20  # some materials, not all (20 draws at 0.5)
     torch.testing.assert_close(flat["diffuse"], tilted["diffuse"])
@@ -145,7 +149,7 @@ def test_flat_normal_frac_flattens_whole_materials_before_their_capture():
 
 def test_capture_stream_draws_seeded_batches_per_worker_at_the_given_sizes():
     bank = materials.MaterialBank("train", side=64)
-    stream = CaptureStream(5, 3, [16, 24], 16, bank, 0.5, True)
+    stream = CaptureStream(5, 3, [16, 24], 16, bank, DataMix(0.5, phone=True))
     first = [b for b, _ in zip(stream, range(6), strict=False)]
     again = [b for b, _ in zip(stream, range(6), strict=False)]
     assert {b[0] for b in first} == {16, 24}
