@@ -66,15 +66,17 @@ def heldout_sets(count: int | None, size: int | None):
         yield int(f.stem.rsplit("_", 1)[1]), box_downsample(maps, size or maps["roughness"].shape[-1])
 
 
-def evaluation_sets(which: str, count: int | None, size: int | None) -> tuple[list, int, str]:
-    """The evaluation's materials as ``(seed, maps [1, S, S, ...])``, their side ``S`` and a
-    description: ``procedural`` (``assets/heldout``; 64² or a divisor) or ``test`` (the real sets of
+def evaluation_sets(which: str, count: int | None, size: int | None) -> tuple[list, int, str, list[str]]:
+    """The evaluation's materials as ``(seed, maps [1, S, S, ...])``, their side ``S``, a
+    description and each material's name (a real set's file stem, a procedural one's seed):
+    ``procedural`` (``assets/heldout``; 64² or a divisor) or ``test`` (the real sets of
     materials/test; default 128²); the first ``count`` (None: all)."""
     if which == "test":
         size = size or 128
         files = materials.list_files("test")[:count]
         sets = [(EVAL_SEED + i, materials.load_maps(f, size)) for i, f in enumerate(files)]
-        return sets, size, f"{len(files)} real CC0 SVBRDFs of materials/test (never trained on) at {size}²"
+        what = f"{len(files)} real CC0 SVBRDFs of materials/test (never trained on) at {size}²"
+        return sets, size, what, [f.stem for f in files]
     sets = list(heldout_sets(count, size))
     side = sets[0][1]["roughness"].shape[-1]
     seeds = [seed for seed, _ in sets]
@@ -82,16 +84,8 @@ def evaluation_sets(which: str, count: int | None, size: int | None) -> tuple[li
         sets,
         side,
         f"{len(sets)} held-out procedural SVBRDFs (assets/heldout, seeds {seeds[0]}..{seeds[-1]}) at {side}²",
+        [str(seed) for seed in seeds],
     )
-
-
-def material_labels(which: str, sets: list) -> list[str]:
-    """Names of :func:`evaluation_sets`' materials: the file stem of a real set, the seed of a
-    procedural one."""
-    if which == "test":
-        files = materials.list_files("test")
-        return [files[seed - EVAL_SEED].stem for seed, _ in sets]
-    return [str(seed) for seed, _ in sets]
 
 
 def gaussian_window(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
@@ -267,7 +261,7 @@ def main(argv: list[str] | None = None) -> None:
 
     model = load_model(args.model) if args.model else None
     t0 = time.time()
-    sets, size, what = evaluation_sets(args.set, args.materials, args.size)
+    sets, size, what, labels = evaluation_sets(args.set, args.materials, args.size)
     rows: list | None = [] if args.per_material else None
     res = evaluate_maps(
         model, sets, len(sets), args.hemisphere, args.reflect, keep_clipped=args.keep_clipped, per_material=rows
@@ -285,7 +279,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     md = markdown(res, "Evaluation: log-L1 and SSIM by protocol", note)
     if rows is not None:
-        md += "\n" + per_material_markdown(material_labels(args.set, sets), rows)
+        md += "\n" + per_material_markdown(labels, rows)
     print(md)
     if args.output:
         Path(args.output).write_text(md)

@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> None:
     model = load_model(args.model) if args.model else None
     t0 = time.time()
     k = args.hemisphere or (32 if args.set == "test" else 128)
-    sets, size, what = evaluation_sets(args.set, args.materials, args.size)
+    sets, size, what, _ = evaluation_sets(args.set, args.materials, args.size)
     what += f", {k} pairs each"
     acc = breakdown(model, sets, k)
     command = f"python -m train_py.mirror --model {args.model} --set {args.set} --size {size} --hemisphere {k}" + (

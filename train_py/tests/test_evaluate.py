@@ -62,11 +62,13 @@ def test_the_agreement_fixture_is_what_the_generator_writes():
 
 
 def test_evaluation_sets_name_what_they_hold():
-    sets, side, what = evaluate.evaluation_sets("procedural", 2, 32)
+    sets, side, what, labels = evaluate.evaluation_sets("procedural", 2, 32)
     assert side == 32 and len(sets) == 2 and sets[0][1]["roughness"].shape == (1, 32, 32)
     assert what.startswith("2 held-out procedural") and str(sets[1][0]) in what
-    sets, side, what = evaluate.evaluation_sets("test", 1, 16)
-    assert side == 16 and len(sets) == 1 and sets[0][0] == evaluate.EVAL_SEED and "materials/test" in what
+    assert labels == [str(seed) for seed, _ in sets]
+    sets, side, what, labels = evaluate.evaluation_sets("test", 2, 16)
+    assert side == 16 and len(sets) == 2 and sets[0][0] == evaluate.EVAL_SEED and "materials/test" in what
+    assert labels == [f.stem for f in evaluate.materials.list_files("test")[:2]]
 
 
 def test_per_material_rows_average_to_the_table_and_name_each_material():
@@ -74,7 +76,7 @@ def test_per_material_rows_average_to_the_table_and_name_each_material():
 
     from .conftest import FIXTURES
 
-    sets, _, _ = evaluate.evaluation_sets("procedural", 3, 16)
+    sets, _, _, labels = evaluate.evaluation_sets("procedural", 3, 16)
     rows: list = []
     model = load_model(FIXTURES / "net_tiny.safetensors")
     res = evaluate.evaluate_maps(model, sets, len(sets), hemisphere_k=4, reflect_k=2, per_material=rows)
@@ -84,10 +86,8 @@ def test_per_material_rows_average_to_the_table_and_name_each_material():
             mean = sum(r[p][m]["log_l1"] for r in rows) / 3
             assert math.isclose(score["log_l1"], mean, rel_tol=1e-9), (p, m)
             assert all(r[p][m]["log_l1"] >= abs(r[p][m]["signed"]) for r in rows)
-    md = evaluate.per_material_markdown(evaluate.material_labels("procedural", sets), rows)
+    md = evaluate.per_material_markdown(labels, rows)
     lines = [line for line in md.splitlines() if line.startswith("| 1000002")]
     assert [line.split(" | ")[0][2:] for line in lines] == [str(seed) for seed, _ in sets]
     shares = [float(line.rstrip(" |").rsplit("| ", 1)[1].rstrip("%")) for line in lines]
     assert abs(sum(shares) - 100) <= 2
-    test_sets, _, _ = evaluate.evaluation_sets("test", 2, 16)
-    assert evaluate.material_labels("test", test_sets) == [f.stem for f in evaluate.materials.list_files("test")[:2]]
