@@ -124,7 +124,7 @@ def heldout_tilt(net: MapsNet, real_frac: float, root: Path = materials.DEFAULT_
     total = 0.0
     for b in range(count):
         seeds = [gen.HELD_OUT_SEED_BASE + batch * b + i for i in range(batch)]
-        maps, net_input, _ = draw_batch(seeds, side, "cpu", bank, DataMix(real_frac, phone=True))
+        maps, net_input, _ = draw_batch(seeds, side, "cpu", bank, DataMix(real_frac, phone=1.0))
         total += float(tilt_unexplained(net(net_input)[0].float(), maps["normal"]))
     return total / count
 
@@ -192,7 +192,7 @@ def train(args) -> None:
             group["lr"] = lr_at(elapsed / (60 * args.minutes), args.lr, args.lr_final) * group["lr_scale"]
         seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (args.batch,), generator=data_gen).tolist()
         size = sizes[int(torch.randint(0, len(sizes), (), generator=data_gen))]
-        maps, net_input, _ = draw_batch(seeds, size, "cpu", bank, DataMix(args.real_frac, phone=True))
+        maps, net_input, _ = draw_batch(seeds, size, "cpu", bank, DataMix(args.real_frac, phone=1.0))
         net.train()
         if state["frozen_bn"]:
             freeze_batchnorm(net)

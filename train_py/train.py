@@ -311,8 +311,9 @@ class DataMix:
 
     #: Share of the materials drawn from the real sets (augmented), the rest procedural.
     real_frac: float = 0.0
-    #: Phone-like captures (``capture.photograph``) instead of the ideal 28° co-located one.
-    phone: bool = False
+    #: Share of the steps with phone-like captures (``capture.photograph``), the rest the ideal 28°
+    #: co-located one the evaluations use (0: all ideal, 1: all phone-like).
+    phone: float = 0.0
     #: Probability that a material's normals are flattened (``+z``, before its capture).
     flat_normal_frac: float = 0.0
     #: Range of a phone capture's auto-exposed median radiance (log-uniform).
@@ -320,7 +321,8 @@ class DataMix:
 
     @staticmethod
     def from_args(args) -> DataMix:
-        return DataMix(args.real_frac, args.phone, args.flat_normal_frac, args.exposure_median)
+        phone = args.phone_frac if args.phone else 0.0
+        return DataMix(args.real_frac, phone, args.flat_normal_frac, args.exposure_median)
 
 
 def draw_batch(
@@ -341,7 +343,8 @@ def draw_batch(
     maps = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
     if mix.flat_normal_frac > 0:
         maps = materials.flat_normals(maps, torch.tensor([rng.u() < mix.flat_normal_frac for _ in seeds]))
-    if not mix.phone:
+    ideal = mix.phone == 0 or (mix.phone < 1 and rng.u() >= mix.phone)
+    if ideal:
         photo = ggx.ldr_capture(ggx.render_capture(maps))
         return {k: v.to(device) for k, v in maps.items()}, ggx.network_input(photo, "ldr").to(device), capture.Capture()
     cap = capture.Capture.random(rng.gen)
@@ -525,6 +528,17 @@ def save_checkpoint(
     os.replace(tmp, path)
 
 
+def _share(text: str) -> float:
+    """A share of the draws: a number in [0, 1]."""
+    try:
+        p = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0 <= p <= 1:
+        raise argparse.ArgumentTypeError(f"need a share in [0, 1], got {text!r}")
+    return p
+
+
 def _exposure_range(text: str) -> tuple[float, float]:
     """``LO,HI`` → ``(LO, HI)`` with 0 < LO ≤ HI ≤ 1 (a photo's median radiance)."""
     try:
@@ -675,7 +689,7 @@ def parse_args(argv=None):
     )
     ap.add_argument(
         "--real-frac",
-        type=float,
+        type=_share,
         default=0.0,
         help="share of materials drawn from the real CC0 sets (materials/train, augmented) instead of "
         "the procedural generator (0: procedural only)",
@@ -686,6 +700,12 @@ def parse_args(argv=None):
         action="store_true",
         help="phone-like captures: field of view 26-50 deg, flash off the lens axis, auto-exposure, "
         "noise, clipping, 8-bit sRGB, sometimes JPEG (default: the ideal 28 deg co-located capture)",
+    )
+    ap.add_argument(
+        "--phone-frac",
+        type=_share,
+        default=1.0,
+        help="with --phone: share of the steps with phone-like captures, the rest the ideal one (default 1)",
     )
     ap.add_argument(
         "--exposure-median",
@@ -714,7 +734,7 @@ def parse_args(argv=None):
     )
     ap.add_argument(
         "--flat-normal-frac",
-        type=float,
+        type=_share,
         default=0.0,
         help="flatten each training material's normals (n = +z, before its capture) with this "
         "probability: a prior that lets the network put a moved highlight where a flat surface has "

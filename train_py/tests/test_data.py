@@ -125,7 +125,7 @@ def test_random_captures_cover_the_field_of_view_range_and_flash_offsets():
 
 def test_draw_batch_mixes_real_and_procedural_materials():
     bank = materials.MaterialBank("train", side=64)
-    maps, net_input, cap = draw_batch([3, 4, 5, 6], 32, "cpu", bank, DataMix(0.5, phone=True))
+    maps, net_input, cap = draw_batch([3, 4, 5, 6], 32, "cpu", bank, DataMix(0.5, phone=1.0))
     assert net_input.shape == (4, 4, 32, 32) and maps["normal"].shape == (4, 32, 32, 3)
     assert capture.FOV_RANGE[0] <= cap.fov <= capture.FOV_RANGE[1]
     plain, plain_input, plain_cap = draw_batch([3, 4], 32, "cpu", None, DataMix())
@@ -149,7 +149,7 @@ def test_flat_normal_frac_flattens_whole_materials_before_their_capture():
 
 def test_capture_stream_draws_seeded_batches_per_worker_at_the_given_sizes():
     bank = materials.MaterialBank("train", side=64)
-    stream = CaptureStream(5, 3, [16, 24], 16, bank, DataMix(0.5, phone=True))
+    stream = CaptureStream(5, 3, [16, 24], 16, bank, DataMix(0.5, phone=1.0))
     first = [b for b, _ in zip(stream, range(6), strict=False)]
     again = [b for b, _ in zip(stream, range(6), strict=False)]
     assert {b[0] for b in first} == {16, 24}
@@ -179,3 +179,22 @@ def test_train_gpu_script_runs_end_to_end_on_the_cpu(tmp_path):
         for table in ("eval", "test", "highlights"):
             assert "| model |" in (out / f"{which}.{table}.md").read_text()
     assert "done:" in (out / "train.log").read_text()
+
+
+def test_phone_share_mixes_ideal_and_phone_steps():
+    bank = materials.MaterialBank("train", side=64)
+    caps = [draw_batch([s, s + 1], 16, "cpu", bank, DataMix(0.5, phone=0.5))[2] for s in range(0, 40, 2)]
+    ideal = sum(c == capture.Capture() for c in caps)
+    assert 0 < ideal < len(caps)  # both kinds of step (20 draws at 0.5)
+    # An ideal step is the plain capture of the same materials.
+    seeds = next([s, s + 1] for s, c in zip(range(0, 40, 2), caps, strict=True) if c == capture.Capture())
+    maps, net_input, _ = draw_batch(seeds, 16, "cpu", bank, DataMix(0.5, phone=0.5))
+    want_maps, want_input, _ = draw_batch(seeds, 16, "cpu", bank, DataMix(0.5))
+    torch.testing.assert_close(maps["diffuse"], want_maps["diffuse"])
+    torch.testing.assert_close(net_input, want_input)
+
+
+def test_shares_outside_zero_to_one_are_refused():
+    for flag in ("--phone-frac", "--real-frac", "--flat-normal-frac"):
+        with pytest.raises(SystemExit):
+            train.parse_args(["--phone", flag, "1.5"])
