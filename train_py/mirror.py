@@ -96,7 +96,10 @@ def markdown(acc: dict[str, dict], what: str, command: str, seconds: float) -> s
     ]
     for m, a in acc.items():
         truth, relit = torch.cat(a["truth"]), torch.cat(a["relit"])
-        lines.append(f"| {m} | {float(truth.median()):.2f} | {float(relit.median()):.2f} |")
+        if truth.numel() == 0:
+            lines.append(f"| {m} | no pixel in the bin | — |")
+        else:
+            lines.append(f"| {m} | {float(truth.median()):.2f} | {float(relit.median()):.2f} |")
     return "\n".join(lines) + "\n"
 
 

@@ -27,6 +27,15 @@ def test_breakdown_counts_every_pixel_once_and_finds_the_diffuse_fit_too_dark_at
     assert flat["abs"][-1] / flat["count"][-1] < 0.5 * fit["abs"][-1] / fit["count"][-1]
     md = mirror.markdown(acc, "two sets", "cmd", 1.0)
     assert md.count("| model |") == 4 and "median truth luminance" in md
+    assert " nan " not in md
+
+
+def test_an_empty_mirror_bin_is_said_so_not_a_nan_median():
+    acc = mirror.breakdown(None, list(heldout_sets(1, 8)), hemisphere_k=2)
+    for a in acc.values():
+        a["truth"], a["relit"] = [torch.zeros(0)], [torch.zeros(0)]
+    md = mirror.markdown(acc, "one set", "cmd", 1.0)
+    assert " nan " not in md and md.count("no pixel in the bin") == len(acc)
 
 
 def test_flat_normals_point_up_for_the_picked_materials_and_leave_the_other_maps_alone():
