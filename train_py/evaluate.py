@@ -24,7 +24,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from . import gen, ggx, materials, protocols
+from . import capture, gen, ggx, materials, protocols
 from .model import NamModel
 
 SSIM_C1 = 0.01**2
@@ -112,10 +112,11 @@ def to_display(radiance: torch.Tensor) -> torch.Tensor:
     return torch.clamp(radiance, 0, 1) ** (1 / 2.2)
 
 
-def diffuse_fit(photo: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
-    """Lambertian relight of the LDR photo: albedo = photo / cos θ_capture, times the new cos θ."""
+def diffuse_fit(photo: torch.Tensor, wi: torch.Tensor, distance: float = ggx.CAPTURE_DISTANCE) -> torch.Tensor:
+    """Lambertian relight of the LDR photo taken from ``(0, 0, distance)``: albedo = photo /
+    cos θ_capture, times the new cos θ."""
     h, w = photo.shape[1:3]
-    cos_capture = ggx.capture_half_z(h, w, photo.dtype, photo.device)  # co-located: wi = wh
+    cos_capture = ggx.capture_half_z(h, w, photo.dtype, photo.device, distance)  # co-located: wi = wh
     albedo = photo / cos_capture[None, :, :, None]
     return albedo[:, None] * torch.clamp(wi[..., 2:3], min=0)
 
@@ -135,6 +136,19 @@ def evaluate_protocols(
     return evaluate_maps(model, sets, len(seeds), hemisphere_k, reflect_k, device, protocol_names)
 
 
+def photograph(seed: int, maps: dict[str, torch.Tensor], phone: bool) -> tuple[dict, torch.Tensor, float]:
+    """The photo the evaluation gives a material, as ``(maps, photo [1, H, W, 3], capture distance)``:
+    the ideal 28° co-located 8-bit capture, or (``phone``) a phone-like one drawn from ``seed``
+    (``capture.Capture.random``: field of view, flash off the lens axis; auto-exposure, which
+    rescales the maps the truth is rendered from; noise, clipping, 8-bit sRGB, sometimes JPEG)."""
+    if not phone:
+        return maps, ggx.ldr_capture(ggx.render_capture(maps)), ggx.CAPTURE_DISTANCE
+    rng = gen.Rng(seed)
+    cap = capture.Capture.random(rng.gen)
+    maps = capture.expose(maps, cap, rng)
+    return maps, capture.phone_photo(capture.render(maps, cap), rng), cap.distance
+
+
 def evaluate_maps(
     model: NamModel | None,
     sets,
@@ -145,12 +159,13 @@ def evaluate_maps(
     protocol_names: tuple[str, ...] = protocols.PROTOCOLS,
     keep_clipped: bool = False,
     per_material: list | None = None,
+    phone: bool = False,
 ) -> dict[str, dict[str, dict[str, float]]]:
     """As :func:`evaluate_protocols` for ``count`` materials given as ``(seed, maps [1, H, W, ...])``;
     ``seed`` picks the light/view pairs. ``keep_clipped``: the network's own params where the
     capture clipped (``NamModel.estimate_photo``). ``per_material``: if given, one
     ``{protocol: {method: {"log_l1", "signed"}}}`` per material is appended to it (``signed``: the
-    mean of ln(1+R̂) − ln(1+R), > 0 too bright)."""
+    mean of ln(1+R̂) − ln(1+R), > 0 too bright). ``phone``: phone-like captures (:func:`photograph`)."""
     counts = {"reflect": reflect_k, "identity": 1, "hemisphere": hemisphere_k}
     sums: dict[str, dict[str, dict[str, float]]] = {}
     for p in protocol_names:
@@ -159,11 +174,11 @@ def evaluate_maps(
     for seed, maps in sets:
         own: dict[str, dict[str, dict[str, float]]] = {p: {} for p in protocol_names}
         size = maps["roughness"].shape[-1]
-        photo = ggx.ldr_capture(ggx.render_capture(maps))
+        maps, photo, distance = photograph(seed, maps, phone)
         params = None
         if model is not None:
             with torch.no_grad():
-                params = model.estimate_photo(photo, fill=not keep_clipped)
+                params = model.estimate_photo(photo, distance, fill=not keep_clipped)
         for p in protocol_names:
             light, view = protocols.seeded_pairs(p, counts[p], pair_seed(seed, p))
             light, view = light.float().to(device), view.float().to(device)
@@ -171,7 +186,7 @@ def evaluate_maps(
             wi, wo, _ = ggx.directions(light, view, size, size)
             preds = {
                 "printout": photo.expand_as(gt),
-                "diffuse fit": diffuse_fit(photo, wi)[0],
+                "diffuse fit": diffuse_fit(photo, wi, distance)[0],
             }
             if params is not None:
                 with torch.no_grad():
@@ -251,6 +266,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--per-material", action="store_true", help="add a table of each material's Hemisphere log-L1 (needs --model)"
     )
+    ap.add_argument(
+        "--phone-capture",
+        action="store_true",
+        help="give each material a seeded phone-like photo (field of view 26-50 deg, flash off the lens "
+        "axis, auto-exposure, noise, clipping, JPEG) instead of the ideal 28 deg capture",
+    )
     ap.add_argument("-o", "--output", help="write the Markdown table here")
     args = ap.parse_args(argv)
     if args.per_material and not args.model:
@@ -264,17 +285,26 @@ def main(argv: list[str] | None = None) -> None:
     sets, size, what, labels = evaluation_sets(args.set, args.materials, args.size)
     rows: list | None = [] if args.per_material else None
     res = evaluate_maps(
-        model, sets, len(sets), args.hemisphere, args.reflect, keep_clipped=args.keep_clipped, per_material=rows
+        model,
+        sets,
+        len(sets),
+        args.hemisphere,
+        args.reflect,
+        keep_clipped=args.keep_clipped,
+        per_material=rows,
+        phone=args.phone_capture,
     )
     note = (
         f"{what}, "
-        f"LDR 8-bit capture input; Reflect {args.reflect}, Identity 1, Hemisphere {args.hemisphere} "
+        + ("seeded phone-like captures (`--phone-capture`)" if args.phone_capture else "ideal 28° LDR 8-bit capture")
+        + f" input; Reflect {args.reflect}, Identity 1, Hemisphere {args.hemisphere} "
         f"light/view pairs per material. Model: `{args.model}`. "
         f"Command: `python -m train_py.evaluate --model {args.model} --set {args.set} "
         + (f"--materials {args.materials} " if args.materials else "")
         + f"--size {size} --hemisphere {args.hemisphere}"
         + (" --keep-clipped" if args.keep_clipped else "")
         + (" --per-material" if args.per_material else "")
+        + (" --phone-capture" if args.phone_capture else "")
         + f"` ({time.time() - t0:.0f} s)."
     )
     md = markdown(res, "Evaluation: log-L1 and SSIM by protocol", note)

@@ -91,3 +91,29 @@ def test_per_material_rows_average_to_the_table_and_name_each_material():
     assert [line.split(" | ")[0][2:] for line in lines] == [str(seed) for seed, _ in sets]
     shares = [float(line.rstrip(" |").rsplit("| ", 1)[1].rstrip("%")) for line in lines]
     assert abs(sum(shares) - 100) <= 2
+
+
+def test_phone_captures_are_seeded_exposed_and_read_at_their_own_distance():
+    from train_py import capture, ggx
+
+    _, maps = next(heldout_sets(1, 16))
+    same_maps, ideal, distance = evaluate.photograph(7, maps, phone=False)
+    assert same_maps is maps and distance == ggx.CAPTURE_DISTANCE
+    torch.testing.assert_close(ideal, ggx.ldr_capture(ggx.render_capture(maps)))
+    exposed, photo, d = evaluate.photograph(7, maps, phone=True)
+    again = evaluate.photograph(7, maps, phone=True)
+    torch.testing.assert_close(photo, again[1])
+    assert d == again[2] and d != ggx.CAPTURE_DISTANCE
+    lo, hi = ggx.capture_distance(capture.FOV_RANGE[1]), ggx.capture_distance(capture.FOV_RANGE[0])
+    assert lo <= d <= hi
+    assert photo.shape == ideal.shape and float(photo.min()) >= 0 and float(photo.max()) <= 1
+    # Auto-exposure rescales the diffuse and specular maps the truth is rendered from, nothing else.
+    k = exposed["diffuse"].mean() / maps["diffuse"].mean()
+    assert not torch.isclose(k, torch.tensor(1.0)) and torch.equal(exposed["normal"], maps["normal"])
+    # Scored end to end: finite, and a different photo gives a different score.
+    res = {
+        phone: evaluate.evaluate_maps(None, [(7, maps)], 1, hemisphere_k=4, protocol_names=("hemisphere",), phone=phone)
+        for phone in (False, True)
+    }
+    fit = [res[p]["hemisphere"]["diffuse fit"]["log_l1"] for p in (False, True)]
+    assert all(math.isfinite(v) for v in fit) and fit[0] != fit[1]
