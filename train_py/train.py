@@ -752,7 +752,10 @@ def parse_args(argv=None):
         action="store_true",
         help="true LeakyReLU(0.001) gradient at the output (dies early; for comparisons only)",
     )
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if not args.phone and (args.phone_frac != 1.0 or args.exposure_median != capture.EXPOSURE_MEDIAN):
+        ap.error("--phone-frac and --exposure-median shape the phone-like captures: add --phone")
+    return args
 
 
 def train(args) -> dict:

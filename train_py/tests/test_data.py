@@ -102,11 +102,11 @@ def test_exposure_puts_the_photo_median_on_the_asked_grey_within_the_limit():
 
 
 def test_exposure_median_flag_takes_a_range_of_radiance_and_refuses_others():
-    assert train.parse_args(["--exposure-median", "0.01,0.8"]).exposure_median == (0.01, 0.8)
+    assert train.parse_args(["--phone", "--exposure-median", "0.01,0.8"]).exposure_median == (0.01, 0.8)
     assert train.parse_args([]).exposure_median == capture.EXPOSURE_MEDIAN
     flags = "--real-frac 0.5 --phone --flat-normal-frac 0.25 --exposure-median 0.1,0.2"
     args = train.parse_args(flags.split())
-    assert DataMix.from_args(args) == DataMix(0.5, True, 0.25, (0.1, 0.2))
+    assert DataMix.from_args(args) == DataMix(0.5, 1.0, 0.25, (0.1, 0.2))
     assert DataMix.from_args(train.parse_args([])) == DataMix()
     for bad in ("0.5", "0.8,0.1", "0,0.5", "0.1,1.5", "a,b"):
         with pytest.raises(SystemExit):
@@ -198,3 +198,10 @@ def test_shares_outside_zero_to_one_are_refused():
     for flag in ("--phone-frac", "--real-frac", "--flat-normal-frac"):
         with pytest.raises(SystemExit):
             train.parse_args(["--phone", flag, "1.5"])
+
+
+def test_phone_capture_flags_without_phone_are_refused():
+    for extra in (["--phone-frac", "0.5"], ["--exposure-median", "0.1,0.3"]):
+        with pytest.raises(SystemExit):
+            train.parse_args(extra)
+        assert train.parse_args(["--phone", *extra]).phone
