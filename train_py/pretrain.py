@@ -9,6 +9,11 @@ per-pixel work (no U-Net, no images) that teaches the decoder sharp, moving high
 (``train --decoder runs/decoder/ckpt.pt --latent-weight w``) then trains ``M_est`` to predict
 ``E(maps)`` densely. Not in the paper (which trains end to end only); kept only if it wins an A/B
 at equal wall-clock time (train_py/README.md).
+
+    python -m train_py.pretrain --from-model models/default.safetensors --out runs/enc ...
+
+fits ``E`` alone to a trained model's frozen decoder instead, so that ``train --decoder
+--latent-weight`` regresses a fine-tune of that model towards latents its own decoder renders.
 """
 
 from __future__ import annotations
@@ -25,9 +30,9 @@ import torch.nn.functional as F
 from safetensors.torch import load_file, save_file
 from torch import nn
 
-from . import ggx
+from . import capture, ggx, materials, protocols
+from . import gen as procedural
 from .model import PARAM_CHANNELS, NDEnc, RenderMLP, init_linear, positional_encoding, query_dirs
-from .protocols import uniform_hemisphere
 
 #: Inputs of ``E``: diffuse (3), specular (3), roughness, ln roughness, normal (3).
 MAP_FEATURES = 11
@@ -98,7 +103,7 @@ def random_directions(gen: torch.Generator, maps: dict[str, torch.Tensor]) -> tu
     hemisphere; ``wi`` uniform too, or (share ``MIRROR_FRAC``) the mirror of ``wo`` about the shading
     normal, perturbed by ~2α so the queries cover the highlight lobe and its flanks."""
     n = maps["roughness"].shape[0]
-    wo = uniform_hemisphere(gen, (n,))
+    wo = protocols.uniform_hemisphere(gen, (n,))
     normal = maps["normal"]
     mirror = 2 * ggx.dot(wo, normal)[:, None] * normal - wo
     alpha = maps["roughness"].clamp(min=0.01) ** 2
@@ -106,7 +111,7 @@ def random_directions(gen: torch.Generator, maps: dict[str, torch.Tensor]) -> tu
     near = ggx.normalize(mirror + jitter)
     near = torch.cat([near[:, :2], near[:, 2:].abs()], dim=-1)
     use_mirror = torch.rand(n, 1, generator=gen) < MIRROR_FRAC
-    wi = torch.where(use_mirror, near, uniform_hemisphere(gen, (n,)))
+    wi = torch.where(use_mirror, near, protocols.uniform_hemisphere(gen, (n,)))
     return ggx.normalize(wi), wo
 
 
@@ -118,11 +123,51 @@ def queries(gen: torch.Generator, n: int):
     return maps, query_dirs(wi, wo), ggx.to_log(radiance)
 
 
-def held_out(n: int = 16384, seed: int = 777):
-    """Fixed validation queries, and the log-L1 of a render of the true maps without its specular
-    term (what a perfect diffuse fit would score)."""
+#: ``--queries scenes``: materials per step, their crop side (px) and the share of each step's
+#: exemplars drawn as the Hemisphere protocol draws them (the rest Reflect, half of those moved light).
+SCENE_MATERIALS = 8
+SCENE_SIZE = 64
+SCENE_HEMISPHERE = 0.5
+
+
+class SceneQueries:
+    """Queries as the model meets them: pixels of training materials (real sets from ``bank``
+    and procedural ones, half their normals flattened, as the shipped recipe draws them) relit from
+    light and view positions above a 64² crop (Reflect, moved light, Hemisphere), not random
+    per-pixel maps and directions. Callable like :func:`queries`."""
+
+    def __init__(self, bank: materials.MaterialBank | None, exemplars: int = 4):
+        from .train import DataMix
+
+        self.bank = bank
+        self.mix = DataMix(real_frac=0.5 if bank is not None else 0.0, flat_normal_frac=0.5)
+        self.exemplars = exemplars
+
+    def __call__(self, gen: torch.Generator, n: int):
+        from .train import draw_maps, draw_seeds_and_size
+
+        seeds, size = draw_seeds_and_size(gen, SCENE_MATERIALS, [], SCENE_SIZE)
+        maps = draw_maps(seeds, size, self.bank, self.mix, procedural.Rng(seeds[0] * 31 + 7))
+        light, view = protocols.reflect(gen, 1, self.exemplars)
+        light, view = protocols.mix_moved_light(gen, light, view, 0.5, capture.Capture().camera())
+        light, view = protocols.mix_hemisphere(gen, light, view, SCENE_HEMISPHERE)
+        radiance = ggx.render_maps(maps, light, view)  # [B, K, H, W, 3]
+        wi, wo, _ = ggx.directions(light, view, size, size)  # [1, K, H, W, 3]
+        b, k = radiance.shape[:2]
+        pick = torch.randint(0, b * k * size * size, (n,), generator=gen)
+        material = pick // (k * size * size)
+        exemplar_pixel = pick % (k * size * size)
+        pixel = exemplar_pixel % (size * size)
+        picked = {key: v.reshape(b, size * size, *v.shape[3:])[material, pixel] for key, v in maps.items()}
+        dirs = query_dirs(wi.reshape(-1, 3)[exemplar_pixel], wo.reshape(-1, 3)[exemplar_pixel])
+        return picked, dirs, ggx.to_log(radiance.reshape(-1, 3)[pick])
+
+
+def held_out(n: int = 16384, seed: int = 777, source=None):
+    """Fixed validation queries (from ``source``, default :func:`queries`), and the log-L1 of a
+    render of the true maps without its specular term (what a perfect diffuse fit would score)."""
     gen = torch.Generator().manual_seed(seed)
-    maps, dirs, target = queries(gen, n)
+    maps, dirs, target = (source or queries)(gen, n)
     wi, wo = dirs[:, 0:3], dirs[:, 3:6]
     n_dot_l, n_dot_v = ggx.dot(maps["normal"], wi), ggx.dot(maps["normal"], wo)
     visible = ((n_dot_l > 0) & (n_dot_v > 0))[:, None]
@@ -163,6 +208,18 @@ def parse_args(argv=None):
     ap.add_argument("--val-every", type=int, default=250)
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     ap.add_argument(
+        "--queries",
+        choices=["random", "scenes"],
+        default="random",
+        help="random per-pixel maps and directions, or pixels of training materials relit from "
+        "positions above them (SceneQueries)",
+    )
+    ap.add_argument("--materials-root", default=str(materials.DEFAULT_ROOT), help="folder holding train/")
+    ap.add_argument(
+        "--from-model",
+        help="a model .safetensors: its ND_enc and M_render, frozen, are the decoder; only E trains",
+    )
+    ap.add_argument(
         "--export", help="instead of training: write the run's decoder (E, ND_enc, M_render; f32) to this .safetensors"
     )
     return ap.parse_args(argv)
@@ -183,6 +240,19 @@ def export(ckpt: Path, path: str) -> None:
     print(f"wrote {path} (step {saved['step']})")
 
 
+def frozen_decoder(path: str | Path) -> Decoder:
+    """A decoder whose ``ND_enc`` and ``M_render`` are a model file's, frozen; ``E`` fresh."""
+    from .export import unfold_model
+
+    model = unfold_model(path)
+    decoder = Decoder()
+    decoder.nd_enc.load_state_dict(model.nd_enc.state_dict())
+    decoder.render.load_state_dict(model.render.state_dict())
+    decoder.nd_enc.requires_grad_(False)
+    decoder.render.requires_grad_(False)
+    return decoder
+
+
 def save(path: Path, decoder: Decoder, opt, state: dict) -> None:
     tmp = path.with_suffix(".tmp")
     torch.save({"decoder": decoder.state_dict(), "optimizer": opt.state_dict(), **state}, tmp)
@@ -199,16 +269,22 @@ def pretrain(args) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     ckpt = out / "ckpt.pt"
     torch.manual_seed(args.seed)
-    decoder = Decoder().to(device)
-    opt = torch.optim.Adam(decoder.parameters(), lr=args.lr)
-    state = {"step": 0, "elapsed": 0.0, "cpu": 0.0, "history": []}
+    decoder = (frozen_decoder(args.from_model) if args.from_model else Decoder()).to(device)
+    opt = torch.optim.Adam([p for p in decoder.parameters() if p.requires_grad], lr=args.lr)
+    state = {"step": 0, "elapsed": 0.0, "cpu": 0.0, "history": [], "from_model": args.from_model}
     if args.resume and ckpt.exists():
         saved = torch.load(ckpt, map_location=device, weights_only=False)
+        if saved.get("from_model") != args.from_model:
+            raise SystemExit(f"--resume {ckpt}: the run had --from-model {saved.get('from_model')}")
         decoder.load_state_dict(saved["decoder"])
         opt.load_state_dict(saved["optimizer"])
         state = {**state, **{k: saved[k] for k in state if k in saved}}
     gen = torch.Generator().manual_seed(args.seed * 7919 + state["step"])
-    val = held_out()
+    source = queries
+    if args.queries == "scenes":
+        root = Path(args.materials_root)
+        source = SceneQueries(materials.MaterialBank("train", root) if (root / "train").is_dir() else None)
+    val = held_out(source=source)
     log = open(out / "train.log", "a")  # noqa: SIM115 (kept open for the run)
 
     def emit(line: str) -> None:
@@ -223,16 +299,18 @@ def pretrain(args) -> dict:
     step = state["step"]
 
     def progress() -> float:
-        if args.cpu_minutes:
-            return (time.process_time() - cpu_start) / (60 * args.cpu_minutes)
-        return (time.time() - start) / (60 * args.minutes)
+        if args.cpu_minutes is not None:
+            spent, budget = time.process_time() - cpu_start, 60 * args.cpu_minutes
+        else:
+            spent, budget = time.time() - start, 60 * args.minutes
+        return spent / budget if budget > 0 else 1.0  # a zero budget: no step, a checkpoint
 
     while progress() < 1:
         elapsed = time.time() - start
         lr = lr_at(progress(), args.lr, args.lr_final)
         for group in opt.param_groups:
             group["lr"] = lr
-        maps, dirs, target = queries(gen, args.batch)
+        maps, dirs, target = source(gen, args.batch)
         maps = {k: v.to(device) for k, v in maps.items()}
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.bf16):
             pred = decoder(maps, dirs.to(device))

@@ -325,6 +325,21 @@ class DataMix:
         return DataMix(args.real_frac, phone, args.flat_normal_frac, args.exposure_median)
 
 
+def draw_maps(
+    seeds: list[int], size: int, bank: materials.MaterialBank | None, mix: DataMix, rng: gen.Rng
+) -> dict[str, torch.Tensor]:
+    """The channel-last maps ``[B, H, W, ...]`` of one step's materials: real sets from ``bank``
+    (share ``mix.real_frac``) then procedural ones, normals flattened with ``mix.flat_normal_frac``."""
+    n_real = sum(rng.u() < mix.real_frac for _ in seeds) if bank is not None else 0
+    parts = [materials.batch(bank, seeds[:n_real], size)] if n_real else []
+    if n_real < len(seeds):
+        parts.append(gen.batch(seeds[n_real:], size))
+    maps = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+    if mix.flat_normal_frac > 0:
+        maps = materials.flat_normals(maps, torch.tensor([rng.u() < mix.flat_normal_frac for _ in seeds]))
+    return maps
+
+
 def draw_batch(
     seeds: list[int],
     size: int,
@@ -336,13 +351,7 @@ def draw_batch(
     ``bank``); a phone capture draws the field of view and flash offset for the step, exposure,
     noise, clipping and JPEG per material."""
     rng = gen.Rng(seeds[0] * 31 + 7)
-    n_real = sum(rng.u() < mix.real_frac for _ in seeds) if bank is not None else 0
-    parts = [materials.batch(bank, seeds[:n_real], size)] if n_real else []
-    if n_real < len(seeds):
-        parts.append(gen.batch(seeds[n_real:], size))
-    maps = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
-    if mix.flat_normal_frac > 0:
-        maps = materials.flat_normals(maps, torch.tensor([rng.u() < mix.flat_normal_frac for _ in seeds]))
+    maps = draw_maps(seeds, size, bank, mix, rng)
     ideal = mix.phone == 0 or (mix.phone < 1 and rng.u() >= mix.phone)
     if ideal:
         photo = ggx.ldr_capture(ggx.render_capture(maps))

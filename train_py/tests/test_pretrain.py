@@ -90,3 +90,44 @@ def test_highlight_oracle_scores_perturbed_true_maps_and_flat_normals_miss_peaks
     assert rows["normals flat"][0] < 1.0 and rows["normals flat"][1] > 0.0
     md = highlights.oracle_markdown(list((n, s, m) for n, (s, m) in rows.items()), 64, 8, 1.0)
     assert "| normals flat |" in md
+
+
+def test_scene_queries_are_pixels_of_training_materials_relit_by_ggx():
+    # Each query's target must be the GGX radiance of its own pixel's maps under its own
+    # directions: an index mix-up between materials, exemplars and pixels breaks this.
+    gen = torch.Generator().manual_seed(4)
+    maps, dirs, target = pretrain.SceneQueries(None)(gen, 2048)
+    assert dirs.shape == (2048, 9) and target.shape == (2048, 3)
+    assert torch.isfinite(target).all() and (target >= 0).all()
+    wi, wo = dirs[:, 0:3], dirs[:, 3:6]
+    radiance = ggx.ggx_radiance(maps["diffuse"], maps["specular"], maps["roughness"], maps["normal"], wi, wo)
+    torch.testing.assert_close(ggx.to_log(radiance), target, atol=1e-6, rtol=1e-5)
+    # Half the materials have flat normals, the rest the procedural generator's tilted ones.
+    assert (maps["normal"][:, 2] == 1).any() and (maps["normal"][:, 2] < 0.999).any()
+
+
+def test_from_model_fits_only_the_map_encoder_to_a_frozen_decoder(tmp_path):
+    from train_py.export import save_model
+    from train_py.tests.test_widen import random_folded
+
+    model = random_folded(4, True)
+    save_model(dict(model.state_dict()), model.config, tmp_path / "m.safetensors")
+    encoders = {}
+    for minutes in ("0", "0.05"):  # no step (E as initialised), then a few steps
+        out = tmp_path / f"enc{minutes}"
+        args = ["--from-model", str(tmp_path / "m.safetensors"), "--queries", "scenes", "--out", str(out)]
+        pretrain.main([*args, "--minutes", minutes, "--batch", "512", "--val-every", "1000"])
+        pretrain.main([*args, "--export", str(out / "enc.safetensors")])
+        saved = pretrain.load_state(out / "enc.safetensors")
+        for name in ("nd_enc", "render"):
+            for key, v in getattr(model, name).state_dict().items():
+                torch.testing.assert_close(saved[f"{name}.{key}"], v)
+        encoders[minutes] = saved["enc.l0.weight"]
+    assert not torch.equal(encoders["0"], encoders["0.05"])
+    # Resuming without the frozen decoder would train a different network: refused.
+    try:
+        pretrain.main(["--queries", "scenes", "--out", str(out), "--resume", "--minutes", "0.01"])
+    except SystemExit as e:
+        assert "--from-model" in str(e)
+    else:
+        raise AssertionError("resume without --from-model was accepted")
