@@ -75,7 +75,10 @@ class Decoder(nn.Module):
         self.render = RenderMLP()
 
     def forward(self, maps: dict[str, torch.Tensor], dirs: torch.Tensor, straight_through: bool = True):
-        latent = self.enc(maps)
+        return self.decode(self.enc(maps), dirs, straight_through)
+
+    def decode(self, latent: torch.Tensor, dirs: torch.Tensor, straight_through: bool = True) -> torch.Tensor:
+        """Log radiance ``[N, 3]`` of latents ``[N, 64]`` for query directions ``[N, 9]``."""
         nd = self.nd_enc(positional_encoding(dirs))
         return self.render(torch.cat([latent, nd], dim=-1), straight_through)
 
@@ -134,20 +137,33 @@ class SceneQueries:
     """Queries as the model meets them: pixels of training materials (real sets from ``bank``
     and procedural ones, half their normals flattened, as the shipped recipe draws them) relit from
     light and view positions above a 64² crop (Reflect, moved light, Hemisphere), not random
-    per-pixel maps and directions. Callable like :func:`queries`."""
+    per-pixel maps and directions. Callable like :func:`queries`.
 
-    def __init__(self, bank: materials.MaterialBank | None, exemplars: int = 4):
+    With a ``model``, each material is photographed as in training (phone-like captures) and
+    :attr:`anchor` holds the model's own params ``[n, 64]`` at the drawn pixels: what ``pretrain
+    --anchor`` keeps ``E`` close to, so that its latents are ones the model's U-Net already makes."""
+
+    def __init__(self, bank: materials.MaterialBank | None, exemplars: int = 4, model=None):
         from .train import DataMix
 
         self.bank = bank
-        self.mix = DataMix(real_frac=0.5 if bank is not None else 0.0, flat_normal_frac=0.5)
+        phone = 1.0 if model is not None else 0.0
+        self.mix = DataMix(real_frac=0.5 if bank is not None else 0.0, phone=phone, flat_normal_frac=0.5)
         self.exemplars = exemplars
+        self.model = model
+        self.anchor: torch.Tensor | None = None
 
     def __call__(self, gen: torch.Generator, n: int):
-        from .train import draw_maps, draw_seeds_and_size
+        from .train import draw_batch, draw_maps, draw_seeds_and_size
 
         seeds, size = draw_seeds_and_size(gen, SCENE_MATERIALS, [], SCENE_SIZE)
-        maps = draw_maps(seeds, size, self.bank, self.mix, procedural.Rng(seeds[0] * 31 + 7))
+        params = None
+        if self.model is None:
+            maps = draw_maps(seeds, size, self.bank, self.mix, procedural.Rng(seeds[0] * 31 + 7))
+        else:
+            maps, net_input, _ = draw_batch(seeds, size, "cpu", self.bank, self.mix)
+            with torch.no_grad():
+                params = self.model.estimate(net_input).float()
         light, view = protocols.reflect(gen, 1, self.exemplars)
         light, view = protocols.mix_moved_light(gen, light, view, 0.5, capture.Capture().camera())
         light, view = protocols.mix_hemisphere(gen, light, view, SCENE_HEMISPHERE)
@@ -160,6 +176,8 @@ class SceneQueries:
         pixel = exemplar_pixel % (size * size)
         picked = {key: v.reshape(b, size * size, *v.shape[3:])[material, pixel] for key, v in maps.items()}
         dirs = query_dirs(wi.reshape(-1, 3)[exemplar_pixel], wo.reshape(-1, 3)[exemplar_pixel])
+        if params is not None:
+            self.anchor = params.permute(0, 2, 3, 1).reshape(b, size * size, -1)[material, pixel]
         return picked, dirs, ggx.to_log(radiance.reshape(-1, 3)[pick])
 
 
@@ -216,13 +234,23 @@ def parse_args(argv=None):
     )
     ap.add_argument("--materials-root", default=str(materials.DEFAULT_ROOT), help="folder holding train/")
     ap.add_argument(
+        "--anchor",
+        type=float,
+        default=0.0,
+        help="with --from-model and --queries scenes: weight of an L1 between E(maps) and the model's "
+        "own params at the same pixels (its U-Net on a training photo of them)",
+    )
+    ap.add_argument(
         "--from-model",
         help="a model .safetensors: its ND_enc and M_render, frozen, are the decoder; only E trains",
     )
     ap.add_argument(
         "--export", help="instead of training: write the run's decoder (E, ND_enc, M_render; f32) to this .safetensors"
     )
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if args.anchor and not (args.from_model and args.queries == "scenes"):
+        ap.error("--anchor needs --from-model and --queries scenes")
+    return args
 
 
 def load_state(path: str | Path) -> dict[str, torch.Tensor]:
@@ -283,7 +311,13 @@ def pretrain(args) -> dict:
     source = queries
     if args.queries == "scenes":
         root = Path(args.materials_root)
-        source = SceneQueries(materials.MaterialBank("train", root) if (root / "train").is_dir() else None)
+        bank = materials.MaterialBank("train", root) if (root / "train").is_dir() else None
+        anchor_model = None
+        if args.anchor:
+            from .export import load_model
+
+            anchor_model = load_model(args.from_model).eval()
+        source = SceneQueries(bank, model=anchor_model)
     val = held_out(source=source)
     log = open(out / "train.log", "a")  # noqa: SIM115 (kept open for the run)
 
@@ -313,8 +347,11 @@ def pretrain(args) -> dict:
         maps, dirs, target = source(gen, args.batch)
         maps = {k: v.to(device) for k, v in maps.items()}
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.bf16):
-            pred = decoder(maps, dirs.to(device))
+            latent = decoder.enc(maps)
+            pred = decoder.decode(latent, dirs.to(device))
         loss = (pred.float() - target.to(device)).abs().mean()
+        if args.anchor:
+            loss = loss + args.anchor * (latent.float() - source.anchor.to(device)).abs().mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

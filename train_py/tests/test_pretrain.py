@@ -131,3 +131,36 @@ def test_from_model_fits_only_the_map_encoder_to_a_frozen_decoder(tmp_path):
         assert "--from-model" in str(e)
     else:
         raise AssertionError("resume without --from-model was accepted")
+
+
+def test_anchored_scene_queries_give_the_models_own_params_at_the_drawn_pixels():
+    from train_py.train import draw_batch, draw_seeds_and_size
+
+    class PixelIndex(torch.nn.Module):
+        """Params whose first channel is each pixel's flat index (material, row, column)."""
+
+        def estimate(self, net_input):
+            b, _, h, w = net_input.shape
+            return torch.arange(b * h * w, dtype=torch.float64).reshape(b, 1, h, w).expand(-1, 64, -1, -1)
+
+    source = pretrain.SceneQueries(None, model=PixelIndex())
+    maps, _, _ = source(torch.Generator().manual_seed(2), 512)
+    assert source.anchor.shape == (512, 64)
+    # The same materials again: each query's maps must be those of the pixel its anchor names.
+    seeds, size = draw_seeds_and_size(
+        torch.Generator().manual_seed(2), pretrain.SCENE_MATERIALS, [], pretrain.SCENE_SIZE
+    )
+    full, _, _ = draw_batch(seeds, size, "cpu", None, source.mix)
+    index = source.anchor[:, 0].long()
+    assert index.unique().numel() > 100
+    for key, v in full.items():
+        torch.testing.assert_close(v.reshape(-1, *v.shape[3:])[index], maps[key])
+
+
+def test_anchor_needs_a_model_and_scene_queries():
+    for argv in (["--anchor", "0.1"], ["--anchor", "0.1", "--from-model", "m.safetensors"]):
+        try:
+            pretrain.parse_args(argv)
+        except SystemExit:
+            continue
+        raise AssertionError(f"{argv} was accepted")
