@@ -310,8 +310,7 @@ def pretrain(args) -> dict:
     gen = torch.Generator().manual_seed(args.seed * 7919 + state["step"])
     source = queries
     if args.queries == "scenes":
-        root = Path(args.materials_root)
-        bank = materials.MaterialBank("train", root) if (root / "train").is_dir() else None
+        bank = materials.MaterialBank("train", Path(args.materials_root))
         anchor_model = None
         if args.anchor:
             from .export import load_model
