@@ -361,18 +361,39 @@ def draw_batch(
     return {k: v.to(device) for k, v in maps.items()}, net_input.to(device), cap
 
 
-def draw_seeds_and_size(g: torch.Generator, batch: int, sizes: list[int], size: int) -> tuple[list[int], int]:
-    """A step's material seeds and its crop size: one of ``sizes`` (drawn), else ``size``."""
+#: Offset of the crop-size stream's seed from the run's: under DDP the sizes come from a stream
+#: without the rank (``draw_seeds_and_size``'s ``size_g``).
+SIZE_SEED_OFFSET = 15485863
+
+
+def draw_seeds_and_size(
+    g: torch.Generator, batch: int, sizes: list[int], size: int, size_g: torch.Generator | None = None
+) -> tuple[list[int], int]:
+    """A step's material seeds (from ``g``) and its crop size: one of ``sizes`` (drawn from ``size_g``,
+    default ``g``), else ``size``. DDP ranks pass one ``size_g`` seeded alike, so a step has one crop
+    size on every rank and none waits on another's larger crop."""
     seeds = torch.randint(0, gen.HELD_OUT_SEED_BASE, (batch,), generator=g).tolist()
     if sizes:
-        size = sizes[int(torch.randint(0, len(sizes), (), generator=g))]
+        size = sizes[int(torch.randint(0, len(sizes), (), generator=g if size_g is None else size_g))]
     return seeds, size
+
+
+def agreed_progress(progress: float, device: torch.device) -> float:
+    """The largest schedule progress over the DDP ranks: time budgets (``--minutes``,
+    ``--cpu-minutes``) run out on each rank's own clock, and a rank that stopped alone would leave
+    the others waiting in their next gradient all-reduce."""
+    value = torch.tensor(progress, dtype=torch.float64, device=device)
+    dist.all_reduce(value, op=dist.ReduceOp.MAX)
+    return float(value)
 
 
 class CaptureStream(torch.utils.data.IterableDataset):
     """Endless training batches ``(size, maps, net_input, capture)`` drawn by ``draw_batch`` on the
     CPU, for ``--workers`` DataLoader processes that keep a GPU fed (each worker its own seeded
-    stream: the batches differ from a ``--workers 0`` run's, which draws them in the step loop)."""
+    stream: the batches differ from a ``--workers 0`` run's, which draws them in the step loop).
+    Under DDP (``world`` > 1) each rank draws its own materials, and the crop sizes from a stream
+    without the rank: a DataLoader yields its workers' batches in turn, so every rank's k-th batch
+    has the same size."""
 
     def __init__(
         self,
@@ -382,17 +403,21 @@ class CaptureStream(torch.utils.data.IterableDataset):
         size: int,
         bank,
         mix: DataMix,
+        rank: int = 0,
+        world: int = 1,
     ):
         super().__init__()
         self.seed, self.batch, self.sizes, self.size = seed, batch, sizes, size
-        self.bank, self.mix = bank, mix
+        self.bank, self.mix, self.rank, self.world = bank, mix, rank, world
 
     def __iter__(self):
         info = torch.utils.data.get_worker_info()
         worker = info.id if info is not None else 0
-        g = torch.Generator().manual_seed(self.seed * 1000003 + 104729 * (worker + 1))
+        stream = self.seed * 1000003 + 104729 * (worker + 1)
+        g = torch.Generator().manual_seed(stream + 7919 * self.rank)
+        size_g = torch.Generator().manual_seed(stream + SIZE_SEED_OFFSET) if self.world > 1 else None
         while True:
-            seeds, size = draw_seeds_and_size(g, self.batch, self.sizes, self.size)
+            seeds, size = draw_seeds_and_size(g, self.batch, self.sizes, self.size, size_g)
             yield (size, *draw_batch(seeds, size, "cpu", self.bank, self.mix))
 
 
@@ -574,7 +599,8 @@ def parse_args(argv=None):
         "--cpu-minutes",
         type=float,
         default=None,
-        help="CPU-time budget of this process (all threads; fair A/B runs on a shared machine)",
+        help="CPU-time budget of this process (all threads; fair A/B runs on a shared machine; under DDP each "
+        "rank's own, the ranks stopping together when the first runs out)",
     )
     ap.add_argument("--out", default="runs/small")
     ap.add_argument("--resume", action="store_true")
@@ -848,6 +874,9 @@ def train(args) -> dict:
         step_module = nn.parallel.DistributedDataParallel(step_module)
 
     data_gen = torch.Generator().manual_seed(args.seed * 1000003 + rank * 7919 + state["step"])
+    size_gen = None
+    if distributed:
+        size_gen = torch.Generator().manual_seed(args.seed * 1000003 + SIZE_SEED_OFFSET + state["step"])
     log = open(out / "train.log", "a") if rank == 0 else None  # noqa: SIM115 (kept open for the run)
 
     def emit(line: str) -> None:
@@ -861,7 +890,7 @@ def train(args) -> dict:
     mix = DataMix.from_args(args)
     batches = None
     if args.workers:
-        stream = CaptureStream(args.seed + 7919 * state["step"], args.batch, sizes, args.size, bank, mix)
+        stream = CaptureStream(args.seed + 7919 * state["step"], args.batch, sizes, args.size, bank, mix, rank, world)
         loader = torch.utils.data.DataLoader(
             stream, batch_size=None, num_workers=args.workers, pin_memory=device.type == "cuda", prefetch_factor=4
         )
@@ -892,6 +921,8 @@ def train(args) -> dict:
             progress = max(progress, elapsed / (60 * args.minutes))
         if args.cpu_minutes:
             progress = max(progress, (time.process_time() - cpu_start) / (60 * args.cpu_minutes))
+        if distributed:
+            progress = agreed_progress(progress, device)
         if progress >= 1.0:
             break
         lr = lr_at(progress, args.lr, args.lr_final)
@@ -903,7 +934,7 @@ def train(args) -> dict:
             maps = {k: v.to(device, non_blocking=True) for k, v in maps.items()}
             net_input = net_input.to(device, non_blocking=True)
         else:
-            seeds, size = draw_seeds_and_size(data_gen, args.batch, sizes, args.size)
+            seeds, size = draw_seeds_and_size(data_gen, args.batch, sizes, args.size, size_gen)
             maps, net_input, cap = draw_batch(seeds, size, device, bank, mix)
         data_s += time.time() - t0
         outputs = max(1, round(args.outputs * (args.size / size) ** 2)) if sizes else args.outputs

@@ -162,6 +162,11 @@ def test_capture_stream_draws_seeded_batches_per_worker_at_the_given_sizes():
     batches = [b for b, _ in zip(loader, range(4), strict=False)]
     assert all(b[0] in (16, 24) for b in batches)
     assert not torch.equal(batches[0][1]["diffuse"], batches[1][1]["diffuse"])
+    # Two DDP ranks: their own materials, one crop size per step.
+    ranks = [CaptureStream(5, 3, [16, 24], 16, bank, DataMix(0.5, phone=1.0), rank, 2) for rank in (0, 1)]
+    r0, r1 = ([b for b, _ in zip(r, range(6), strict=False)] for r in ranks)
+    assert [b[0] for b in r0] == [b[0] for b in r1] and {b[0] for b in r0} == {16, 24}
+    assert not any(torch.equal(a[2], b[2]) for a, b in zip(r0, r1, strict=True))
 
 
 def test_train_gpu_script_runs_end_to_end_on_the_cpu(tmp_path):

@@ -16,10 +16,12 @@ from train_py.train import (
     ActivationExcess,
     MapProbe,
     TrainStep,
+    agreed_progress,
     bottleneck_excess,
     capture_clipped,
     chroma_l1,
     display_l1,
+    draw_seeds_and_size,
     exemplar_targets,
     gather_rows,
     highlight_weights,
@@ -127,6 +129,47 @@ def test_torchrun_single_process_trains_and_writes_checkpoint(tmp_path):
     )
     assert "resumed" in resumed.stdout
     assert torch.load(tmp_path / "ckpt.pt", weights_only=False)["step"] == 3
+
+
+def test_torchrun_two_processes_train_on_a_time_budget_at_drawn_sizes(tmp_path):
+    # DDP end to end on the CPU: the ranks agree when their clocks run out (agreed_progress, tested
+    # on its own below; a rank that stopped alone would hang the other) and on each step's size.
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2"]
+    cmd += ["-m", "train_py.train", "--config", "tiny", "--steps", "100000", "--cpu-minutes", "0.03"]
+    cmd += ["--size", "32", "--sizes", "32,48", "--batch", "2", "--outputs", "2", "--out", str(tmp_path)]
+    cmd += ["--val-every", "0", "--threads", "1"]
+    done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "world=2" in done.stdout and torch.load(tmp_path / "ckpt.pt", weights_only=False)["step"] > 1
+
+
+def _agreed_progress_on_rank(rank: int, port: int, results) -> None:
+    import torch.distributed as dist
+
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    dist.init_process_group("gloo", rank=rank, world_size=2)
+    results[rank] = agreed_progress([0.25, 1.0][rank], torch.device("cpu"))
+    dist.destroy_process_group()
+
+
+def test_agreed_progress_is_the_largest_over_the_ranks():
+    import torch.multiprocessing as mp
+
+    results = mp.Manager().dict()
+    mp.spawn(_agreed_progress_on_rank, args=(29533, results), nprocs=2, join=True)
+    assert dict(results) == {0: 1.0, 1: 1.0}
+
+
+def test_ddp_ranks_draw_their_own_materials_at_one_crop_size():
+    draws = []
+    for rank in (0, 1):
+        g = torch.Generator().manual_seed(11 * 1000003 + 7919 * rank)
+        size_g = torch.Generator().manual_seed(11)
+        draws.append([draw_seeds_and_size(g, 4, [32, 48, 64], 32, size_g) for _ in range(12)])
+    sizes = [[size for _, size in d] for d in draws]
+    assert sizes[0] == sizes[1] and len(set(sizes[0])) > 1
+    assert all(a != b for (a, _), (b, _) in zip(draws[0], draws[1], strict=True))
 
 
 def test_ssim_is_one_for_identical_and_lower_for_noisy_images():
