@@ -1,4 +1,4 @@
-"""Training pieces: Reflect sampling, pixel selection, loss decrease, DDP with one process, evaluation."""
+"""Training pieces: Reflect sampling, pixel selection, loss decrease, DDP with one and two processes, evaluation."""
 
 import dataclasses
 import os
