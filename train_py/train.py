@@ -364,6 +364,8 @@ def draw_batch(
 #: Offset of the crop-size stream's seed from the run's: under DDP the sizes come from a stream
 #: without the rank (``draw_seeds_and_size``'s ``size_g``).
 SIZE_SEED_OFFSET = 15485863
+#: A DDP rank's offset in its material stream's seed: ``seed + RANK_SEED_STRIDE * rank``.
+RANK_SEED_STRIDE = 7919
 
 
 def draw_seeds_and_size(
@@ -414,7 +416,7 @@ class CaptureStream(torch.utils.data.IterableDataset):
         info = torch.utils.data.get_worker_info()
         worker = info.id if info is not None else 0
         stream = self.seed * 1000003 + 104729 * (worker + 1)
-        g = torch.Generator().manual_seed(stream + 7919 * self.rank)
+        g = torch.Generator().manual_seed(stream + RANK_SEED_STRIDE * self.rank)
         size_g = torch.Generator().manual_seed(stream + SIZE_SEED_OFFSET) if self.world > 1 else None
         while True:
             seeds, size = draw_seeds_and_size(g, self.batch, self.sizes, self.size, size_g)
@@ -873,7 +875,7 @@ def train(args) -> dict:
     if distributed:
         step_module = nn.parallel.DistributedDataParallel(step_module)
 
-    data_gen = torch.Generator().manual_seed(args.seed * 1000003 + rank * 7919 + state["step"])
+    data_gen = torch.Generator().manual_seed(args.seed * 1000003 + RANK_SEED_STRIDE * rank + state["step"])
     size_gen = None
     if distributed:
         size_gen = torch.Generator().manual_seed(args.seed * 1000003 + SIZE_SEED_OFFSET + state["step"])
