@@ -31,7 +31,7 @@ from . import gen, ggx, materials
 from .export import freeze_batchnorm, unfold_model
 from .highlights import glossy_sets, peak_stats, score
 from .model import CONFIGS, UNet
-from .train import DataMix, MapProbe, draw_batch, lr_at, maps_l1
+from .train import RUN_SEED_STRIDE, DataMix, MapProbe, draw_batch, lr_at, maps_l1
 
 #: Side of the scoring renders (peak distances are scaled to 256²).
 SCORE_SIZE = 128
@@ -171,7 +171,7 @@ def train(args) -> None:
         opt.load_state_dict(ckpt["optimizer"])
         state.update({k: ckpt[k] for k in state})
     bank = materials.MaterialBank("train", Path(args.materials_root))
-    data_gen = torch.Generator().manual_seed(args.seed * 1000003 + state["step"])
+    data_gen = torch.Generator().manual_seed(args.seed * RUN_SEED_STRIDE + state["step"])
     sizes = [int(v) for v in args.sizes.split(",")]
     log = open(out / "train.log", "a")  # noqa: SIM115 (kept open for the run)
 

@@ -364,6 +364,9 @@ def draw_batch(
 #: Offset of the crop-size stream's seed from the run's: under DDP the sizes come from a stream
 #: without the rank (``draw_seeds_and_size``'s ``size_g``).
 SIZE_SEED_OFFSET = 15485863
+#: Multiplier of the run's ``--seed`` in its data streams' seeds (``seed * RUN_SEED_STRIDE + ...``),
+#: so neighbouring run seeds draw unrelated streams.
+RUN_SEED_STRIDE = 1000003
 #: A DDP rank's offset in its material stream's seed: ``seed + RANK_SEED_STRIDE * rank``.
 RANK_SEED_STRIDE = 7919
 
@@ -415,7 +418,7 @@ class CaptureStream(torch.utils.data.IterableDataset):
     def __iter__(self):
         info = torch.utils.data.get_worker_info()
         worker = info.id if info is not None else 0
-        stream = self.seed * 1000003 + 104729 * (worker + 1)
+        stream = self.seed * RUN_SEED_STRIDE + 104729 * (worker + 1)
         g = torch.Generator().manual_seed(stream + RANK_SEED_STRIDE * self.rank)
         size_g = torch.Generator().manual_seed(stream + SIZE_SEED_OFFSET) if self.world > 1 else None
         while True:
@@ -875,10 +878,10 @@ def train(args) -> dict:
     if distributed:
         step_module = nn.parallel.DistributedDataParallel(step_module)
 
-    data_gen = torch.Generator().manual_seed(args.seed * 1000003 + RANK_SEED_STRIDE * rank + state["step"])
+    data_gen = torch.Generator().manual_seed(args.seed * RUN_SEED_STRIDE + RANK_SEED_STRIDE * rank + state["step"])
     size_gen = None
     if distributed:
-        size_gen = torch.Generator().manual_seed(args.seed * 1000003 + SIZE_SEED_OFFSET + state["step"])
+        size_gen = torch.Generator().manual_seed(args.seed * RUN_SEED_STRIDE + SIZE_SEED_OFFSET + state["step"])
     log = open(out / "train.log", "a") if rank == 0 else None  # noqa: SIM115 (kept open for the run)
 
     def emit(line: str) -> None:

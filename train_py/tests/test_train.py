@@ -13,6 +13,8 @@ from train_py.evaluate import evaluate_protocols, ssim
 from train_py.export import fold_state_dict, freeze_batchnorm, load_checkpoint, load_model, save_model, unfold_model
 from train_py.model import CONFIGS, Conv, NamModel
 from train_py.train import (
+    RANK_SEED_STRIDE,
+    RUN_SEED_STRIDE,
     ActivationExcess,
     MapProbe,
     TrainStep,
@@ -164,7 +166,7 @@ def test_agreed_progress_is_the_largest_over_the_ranks():
 def test_ddp_ranks_draw_their_own_materials_at_one_crop_size():
     draws = []
     for rank in (0, 1):
-        g = torch.Generator().manual_seed(11 * 1000003 + 7919 * rank)
+        g = torch.Generator().manual_seed(11 * RUN_SEED_STRIDE + RANK_SEED_STRIDE * rank)
         size_g = torch.Generator().manual_seed(11)
         draws.append([draw_seeds_and_size(g, 4, [32, 48, 64], 32, size_g) for _ in range(12)])
     sizes = [[size for _, size in d] for d in draws]
